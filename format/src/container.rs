@@ -1,0 +1,355 @@
+//! The container: a fixed header, a section table and 16-byte-aligned sections.
+//!
+//! ```text
+//! offset  size  field
+//!  0       8    magic  "\x89MLTBK\r\n"   (a PNG-style signature: catches text-mode mangling)
+//!  8       2    format major version (readers reject other majors)
+//! 10       2    format minor version (new sections and fields; readers accept any minor)
+//! 12       4    flags (reserved, 0)
+//! 16       4    header length in bytes (fixed part + section table, multiple of 16)
+//! 20       4    section count
+//! 24       8    file length in bytes
+//! 32       8    xxh3-64 of the payload (bytes header_len..file_len)
+//! 40       8    xxh3-64 of the header with this field zeroed
+//! 48      16    reserved, 0
+//! 64  32 * n    section table: tag [u8; 4], flags u32 (bit 0: zstd), offset u64,
+//!               stored length u64, raw (decompressed) length u64
+//! ```
+//! All integers are little-endian. Sections start at 16-byte-aligned offsets and hold rkyv
+//! archives (zstd-compressed when flagged). Readers ignore tags they do not know, so later
+//! versions can add sections (the transport links, a flattening operator) without breaking
+//! readers of this version's.
+
+use std::ops::Deref;
+use std::path::Path;
+
+use rkyv::util::AlignedVec;
+use xxhash_rust::xxh3::xxh3_64;
+
+use crate::error::FormatError;
+
+pub const MAGIC: [u8; 8] = *b"\x89MLTBK\r\n";
+pub const VERSION_MAJOR: u16 = 1;
+pub const VERSION_MINOR: u16 = 0;
+pub const FIXED_HEADER: usize = 64;
+pub const ENTRY_SIZE: usize = 32;
+pub const ALIGN: usize = 16;
+const FLAG_ZSTD: u32 = 1;
+/// A decompressed section may be at most this many times its stored size (zstd's best ratio
+/// is far below); guards against a forged length asking for an absurd allocation.
+const MAX_EXPANSION: u64 = 1 << 12;
+
+/// One entry of the section table.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SectionEntry {
+    pub tag: [u8; 4],
+    pub compressed: bool,
+    pub offset: u64,
+    pub stored_len: u64,
+    pub raw_len: u64,
+}
+
+impl SectionEntry {
+    pub fn tag_str(&self) -> String {
+        String::from_utf8_lossy(&self.tag).into_owned()
+    }
+}
+
+/// A section to write.
+pub struct SectionIn<'a> {
+    pub tag: [u8; 4],
+    pub bytes: &'a [u8],
+    pub compress: bool,
+}
+
+fn align_up(x: usize) -> usize {
+    x.div_ceil(ALIGN) * ALIGN
+}
+
+/// Serialises sections into a complete file image. Deterministic: the same sections give the
+/// same bytes (zstd at a fixed level, single-threaded).
+pub fn encode(sections: &[SectionIn<'_>]) -> Result<Vec<u8>, FormatError> {
+    let header_len = align_up(FIXED_HEADER + ENTRY_SIZE * sections.len());
+    let mut out = vec![0u8; header_len];
+    let mut entries = Vec::with_capacity(sections.len());
+    for s in sections {
+        let stored: std::borrow::Cow<[u8]> = if s.compress {
+            zstd::bulk::compress(s.bytes, 9)
+                .map_err(|e| FormatError::Serialize {
+                    tag: String::from_utf8_lossy(&s.tag).into_owned(),
+                    detail: e.to_string(),
+                })?
+                .into()
+        } else {
+            s.bytes.into()
+        };
+        let offset = out.len();
+        out.extend_from_slice(&stored);
+        out.resize(align_up(out.len()), 0);
+        entries.push(SectionEntry {
+            tag: s.tag,
+            compressed: s.compress,
+            offset: offset as u64,
+            stored_len: stored.len() as u64,
+            raw_len: s.bytes.len() as u64,
+        });
+    }
+    let file_len = out.len() as u64;
+    out[0..8].copy_from_slice(&MAGIC);
+    out[8..10].copy_from_slice(&VERSION_MAJOR.to_le_bytes());
+    out[10..12].copy_from_slice(&VERSION_MINOR.to_le_bytes());
+    out[16..20].copy_from_slice(&(header_len as u32).to_le_bytes());
+    out[20..24].copy_from_slice(&(sections.len() as u32).to_le_bytes());
+    out[24..32].copy_from_slice(&file_len.to_le_bytes());
+    for (i, e) in entries.iter().enumerate() {
+        let o = FIXED_HEADER + i * ENTRY_SIZE;
+        out[o..o + 4].copy_from_slice(&e.tag);
+        let flags = if e.compressed { FLAG_ZSTD } else { 0 };
+        out[o + 4..o + 8].copy_from_slice(&flags.to_le_bytes());
+        out[o + 8..o + 16].copy_from_slice(&e.offset.to_le_bytes());
+        out[o + 16..o + 24].copy_from_slice(&e.stored_len.to_le_bytes());
+        out[o + 24..o + 32].copy_from_slice(&e.raw_len.to_le_bytes());
+    }
+    let payload_hash = xxh3_64(&out[header_len..]);
+    out[32..40].copy_from_slice(&payload_hash.to_le_bytes());
+    let header_hash = xxh3_64(&out[..header_len]);
+    out[40..48].copy_from_slice(&header_hash.to_le_bytes());
+    Ok(out)
+}
+
+fn u16_at(b: &[u8], o: usize) -> u16 {
+    u16::from_le_bytes([b[o], b[o + 1]])
+}
+fn u32_at(b: &[u8], o: usize) -> u32 {
+    u32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]])
+}
+fn u64_at(b: &[u8], o: usize) -> u64 {
+    let mut a = [0u8; 8];
+    a.copy_from_slice(&b[o..o + 8]);
+    u64::from_le_bytes(a)
+}
+
+/// The parsed header of a file image.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Header {
+    pub major: u16,
+    pub minor: u16,
+    pub header_len: usize,
+    pub file_len: u64,
+    pub payload_hash: u64,
+    pub sections: Vec<SectionEntry>,
+}
+
+/// Checks magic, version, lengths, both checksums and the section table of a file image.
+pub fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header, FormatError> {
+    let truncated = |detail: String| FormatError::Truncated {
+        path: path.to_path_buf(),
+        detail,
+    };
+    if bytes.len() < 8 || bytes[..8] != MAGIC {
+        if bytes.len() < 8 && MAGIC.starts_with(bytes) {
+            return Err(truncated(format!("only {} bytes", bytes.len())));
+        }
+        return Err(FormatError::BadMagic {
+            path: path.to_path_buf(),
+        });
+    }
+    if bytes.len() < FIXED_HEADER {
+        return Err(truncated(format!(
+            "{} bytes, shorter than the {FIXED_HEADER}-byte header",
+            bytes.len()
+        )));
+    }
+    let major = u16_at(bytes, 8);
+    let minor = u16_at(bytes, 10);
+    if major != VERSION_MAJOR {
+        return Err(FormatError::WrongVersion {
+            path: path.to_path_buf(),
+            major,
+            minor,
+            supported: VERSION_MAJOR,
+        });
+    }
+    let header_len = u32_at(bytes, 16) as usize;
+    let count = u32_at(bytes, 20) as usize;
+    let file_len = u64_at(bytes, 24);
+    if file_len != bytes.len() as u64 {
+        return Err(truncated(format!(
+            "header says {file_len} bytes, the file has {}",
+            bytes.len()
+        )));
+    }
+    if header_len < FIXED_HEADER
+        || header_len % ALIGN != 0
+        || header_len > bytes.len()
+        || count > (header_len - FIXED_HEADER) / ENTRY_SIZE
+    {
+        return Err(truncated(format!(
+            "bad header length {header_len} for {count} sections"
+        )));
+    }
+    let mut header = bytes[..header_len].to_vec();
+    header[40..48].fill(0);
+    let stored = u64_at(bytes, 40);
+    let computed = xxh3_64(&header);
+    if stored != computed {
+        return Err(FormatError::Checksum {
+            path: path.to_path_buf(),
+            what: "header",
+            stored,
+            computed,
+        });
+    }
+    let payload_hash = u64_at(bytes, 32);
+    let computed = xxh3_64(&bytes[header_len..]);
+    if payload_hash != computed {
+        return Err(FormatError::Checksum {
+            path: path.to_path_buf(),
+            what: "payload",
+            stored: payload_hash,
+            computed,
+        });
+    }
+    let mut sections = Vec::with_capacity(count);
+    for i in 0..count {
+        let o = FIXED_HEADER + i * ENTRY_SIZE;
+        let mut tag = [0u8; 4];
+        tag.copy_from_slice(&bytes[o..o + 4]);
+        let flags = u32_at(bytes, o + 4);
+        let e = SectionEntry {
+            tag,
+            compressed: flags & FLAG_ZSTD != 0,
+            offset: u64_at(bytes, o + 8),
+            stored_len: u64_at(bytes, o + 16),
+            raw_len: u64_at(bytes, o + 24),
+        };
+        let end = e.offset.checked_add(e.stored_len);
+        if e.offset < header_len as u64
+            || e.offset % ALIGN as u64 != 0
+            || end.is_none_or(|end| end > file_len)
+            || (!e.compressed && e.raw_len != e.stored_len)
+            || (e.compressed && e.raw_len > e.stored_len.saturating_mul(MAX_EXPANSION))
+        {
+            return Err(truncated(format!(
+                "section '{}' lies outside the file or has inconsistent lengths",
+                e.tag_str()
+            )));
+        }
+        sections.push(e);
+    }
+    Ok(Header {
+        major,
+        minor,
+        header_len,
+        file_len,
+        payload_hash,
+        sections,
+    })
+}
+
+/// A section's bytes, 16-byte aligned: borrowed from the mapped file, or decompressed.
+pub enum SectionBytes<'a> {
+    Borrowed(&'a [u8]),
+    Owned(AlignedVec<ALIGN>),
+}
+
+impl Deref for SectionBytes<'_> {
+    type Target = [u8];
+    fn deref(&self) -> &[u8] {
+        match self {
+            SectionBytes::Borrowed(b) => b,
+            SectionBytes::Owned(v) => v.as_slice(),
+        }
+    }
+}
+
+/// The bytes of section `e` of a validated image `bytes` (whose start is 16-byte aligned).
+pub fn section_bytes<'a>(
+    path: &Path,
+    bytes: &'a [u8],
+    e: &SectionEntry,
+) -> Result<SectionBytes<'a>, FormatError> {
+    let stored = &bytes[e.offset as usize..(e.offset + e.stored_len) as usize];
+    if !e.compressed {
+        return Ok(SectionBytes::Borrowed(stored));
+    }
+    let raw = zstd::bulk::decompress(stored, e.raw_len as usize).map_err(|err| {
+        FormatError::BadSection {
+            path: path.to_path_buf(),
+            tag: e.tag_str(),
+            detail: format!("zstd: {err}"),
+        }
+    })?;
+    if raw.len() as u64 != e.raw_len {
+        return Err(FormatError::BadSection {
+            path: path.to_path_buf(),
+            tag: e.tag_str(),
+            detail: format!("decompressed to {} bytes, expected {}", raw.len(), e.raw_len),
+        });
+    }
+    let mut v = AlignedVec::<ALIGN>::with_capacity(raw.len());
+    v.extend_from_slice(&raw);
+    Ok(SectionBytes::Owned(v))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn image(compress: bool) -> Vec<u8> {
+        let a = vec![7u8; 1000];
+        let b = b"hello".to_vec();
+        encode(&[
+            SectionIn { tag: *b"AAAA", bytes: &a, compress },
+            SectionIn { tag: *b"BBBB", bytes: &b, compress: false },
+        ])
+        .unwrap()
+    }
+
+    #[test]
+    fn round_trip_and_alignment() {
+        for compress in [false, true] {
+            let img = image(compress);
+            let p = Path::new("t.mlt");
+            let h = parse_header(p, &img).unwrap();
+            assert_eq!(h.sections.len(), 2);
+            for e in &h.sections {
+                assert_eq!(e.offset % 16, 0);
+            }
+            let mut aligned = AlignedVec::<16>::new();
+            aligned.extend_from_slice(&img);
+            let a = section_bytes(p, &aligned, &h.sections[0]).unwrap();
+            assert_eq!(&a[..], &vec![7u8; 1000][..]);
+            let b = section_bytes(p, &aligned, &h.sections[1]).unwrap();
+            assert_eq!(&b[..], b"hello");
+        }
+        assert!(image(true).len() < image(false).len());
+        assert_eq!(image(true), image(true));
+    }
+
+    #[test]
+    fn every_truncation_and_every_flipped_byte_is_rejected() {
+        let img = image(false);
+        let p = Path::new("t.mlt");
+        for len in 0..img.len() {
+            assert!(parse_header(p, &img[..len]).is_err(), "truncated to {len}");
+        }
+        for i in 0..img.len() {
+            let mut bad = img.clone();
+            bad[i] ^= 0x10;
+            assert!(parse_header(p, &bad).is_err(), "flipped byte {i}");
+        }
+    }
+
+    #[test]
+    fn wrong_version_and_magic_are_named() {
+        let p = Path::new("t.mlt");
+        let mut img = image(false);
+        img[8] = 2;
+        let e = parse_header(p, &img).unwrap_err();
+        assert!(matches!(e, FormatError::WrongVersion { major: 2, .. }), "{e}");
+        assert!(e.to_string().contains("t.mlt"));
+        let e = parse_header(p, b"# not a baked file, just text\n").unwrap_err();
+        assert!(matches!(e, FormatError::BadMagic { .. }));
+    }
+}

@@ -1,0 +1,301 @@
+//! Baked files: writing them atomically, memory-mapping and validating them, and reading
+//! their sections.
+
+use std::fs;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use memmap2::Mmap;
+use rkyv::rancor;
+use rkyv::util::AlignedVec;
+use serde::Serialize;
+
+use crate::basis::Basis;
+use crate::container::{self, Header, SectionIn, ALIGN};
+use crate::error::FormatError;
+use crate::meta::Meta;
+use crate::rtree::RTree;
+use crate::shepard::IndexedBasis;
+
+/// Section tags of format 1.0.
+pub const TAG_META: [u8; 4] = *b"META";
+pub const TAG_BASIS: [u8; 4] = *b"BASE";
+pub const TAG_RTREES: [u8; 4] = *b"RTRE";
+
+/// The R-trees of all levels, archived together.
+#[derive(Clone, Debug, Default, PartialEq, rkyv::Archive, rkyv::Serialize, rkyv::Deserialize)]
+pub struct RTrees {
+    pub levels: Vec<RTree>,
+}
+
+/// What a bake produces and a file holds.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BakeContents {
+    pub meta: Meta,
+    pub basis: IndexedBasis,
+}
+
+/// How to write.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct WriteOptions {
+    /// zstd-compress every section (smaller files; readers then decompress instead of
+    /// mapping the sections in place).
+    pub compress: bool,
+}
+
+fn ser_err(tag: [u8; 4]) -> impl Fn(rancor::Error) -> FormatError {
+    move |e| FormatError::Serialize {
+        tag: String::from_utf8_lossy(&tag).into_owned(),
+        detail: e.to_string(),
+    }
+}
+
+/// The complete file image for `contents`; deterministic.
+pub fn encode(contents: &BakeContents, opts: WriteOptions) -> Result<Vec<u8>, FormatError> {
+    let meta = rkyv::to_bytes::<rancor::Error>(&contents.meta).map_err(ser_err(TAG_META))?;
+    let basis =
+        rkyv::to_bytes::<rancor::Error>(&contents.basis.basis).map_err(ser_err(TAG_BASIS))?;
+    let trees = RTrees {
+        levels: contents.basis.trees.clone(),
+    };
+    let trees = rkyv::to_bytes::<rancor::Error>(&trees).map_err(ser_err(TAG_RTREES))?;
+    container::encode(&[
+        SectionIn {
+            tag: TAG_META,
+            bytes: &meta,
+            compress: opts.compress,
+        },
+        SectionIn {
+            tag: TAG_BASIS,
+            bytes: &basis,
+            compress: opts.compress,
+        },
+        SectionIn {
+            tag: TAG_RTREES,
+            bytes: &trees,
+            compress: opts.compress,
+        },
+    ])
+}
+
+/// Writes `bytes` to `path` through a temporary file in the same directory that is renamed
+/// into place, so that an existing file is never left half-written: readers see the old file
+/// or the new one.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), FormatError> {
+    let io = |source| FormatError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "out".into());
+    let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
+    let result = (|| {
+        let mut f = fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        drop(f);
+        fs::rename(&tmp, path)
+    })();
+    if result.is_err() {
+        let _ = fs::remove_file(&tmp);
+    }
+    result.map_err(io)
+}
+
+/// Encodes and writes `contents` atomically; returns the file size.
+pub fn write(path: &Path, contents: &BakeContents, opts: WriteOptions) -> Result<u64, FormatError> {
+    let bytes = encode(contents, opts)?;
+    write_atomic(path, &bytes)?;
+    Ok(bytes.len() as u64)
+}
+
+enum Storage {
+    Mapped(Mmap),
+    Owned(AlignedVec<ALIGN>),
+}
+
+/// An opened, validated baked file (memory-mapped when opened from disk).
+pub struct BakedFile {
+    path: PathBuf,
+    storage: Storage,
+    header: Header,
+}
+
+impl BakedFile {
+    /// Memory-maps `path` and validates magic, version, length, checksums and the section
+    /// table. Section contents are validated when read.
+    pub fn open(path: &Path) -> Result<BakedFile, FormatError> {
+        let file = fs::File::open(path).map_err(|source| FormatError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        // SAFETY: the mapping is read-only and private to this process. Its contents can only
+        // change under us if another process writes to this very file while it is mapped;
+        // our writers never do that (they write a temporary file and rename it over the old
+        // one, which leaves existing mappings of the old inode intact). Every byte we read is
+        // bounds-checked against the header and checksummed before use, so a file modified
+        // between open and read gives an error, not undefined behaviour in our code.
+        let map = unsafe { Mmap::map(&file) }.map_err(|source| FormatError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let header = container::parse_header(path, &map)?;
+        Ok(BakedFile {
+            path: path.to_path_buf(),
+            storage: Storage::Mapped(map),
+            header,
+        })
+    }
+
+    /// Validates an in-memory image (copied into aligned storage); `path` names it in errors.
+    pub fn from_bytes(path: &Path, bytes: &[u8]) -> Result<BakedFile, FormatError> {
+        let mut v = AlignedVec::<ALIGN>::with_capacity(bytes.len());
+        v.extend_from_slice(bytes);
+        let header = container::parse_header(path, &v)?;
+        Ok(BakedFile {
+            path: path.to_path_buf(),
+            storage: Storage::Owned(v),
+            header,
+        })
+    }
+
+    fn bytes(&self) -> &[u8] {
+        match &self.storage {
+            Storage::Mapped(m) => m,
+            Storage::Owned(v) => v.as_slice(),
+        }
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    pub fn header(&self) -> &Header {
+        &self.header
+    }
+
+    pub fn file_len(&self) -> u64 {
+        self.header.file_len
+    }
+
+    fn section<T>(&self, tag: [u8; 4]) -> Result<T, FormatError>
+    where
+        T: rkyv::Archive,
+        T::Archived: for<'a> rkyv::bytecheck::CheckBytes<
+                rkyv::api::high::HighValidator<'a, rancor::Error>,
+            > + rkyv::Deserialize<T, rkyv::api::high::HighDeserializer<rancor::Error>>,
+    {
+        let tag_str = String::from_utf8_lossy(&tag).into_owned();
+        let entry = self
+            .header
+            .sections
+            .iter()
+            .find(|e| e.tag == tag)
+            .ok_or_else(|| FormatError::MissingSection {
+                path: self.path.clone(),
+                tag: tag_str.clone(),
+            })?;
+        let bytes = container::section_bytes(&self.path, self.bytes(), entry)?;
+        let bad = |detail: String| FormatError::BadSection {
+            path: self.path.clone(),
+            tag: tag_str.clone(),
+            detail,
+        };
+        let archived = rkyv::access::<T::Archived, rancor::Error>(&bytes)
+            .map_err(|e| bad(e.to_string()))?;
+        rkyv::deserialize::<T, rancor::Error>(archived).map_err(|e| bad(e.to_string()))
+    }
+
+    /// The `META` section.
+    pub fn meta(&self) -> Result<Meta, FormatError> {
+        self.section::<Meta>(TAG_META)
+    }
+
+    /// The basis and its R-trees, validated (structure, finiteness, tree shape and bounds).
+    pub fn basis(&self) -> Result<IndexedBasis, FormatError> {
+        let basis = self.section::<Basis>(TAG_BASIS)?;
+        let trees = self.section::<RTrees>(TAG_RTREES)?;
+        IndexedBasis::from_parts(basis, trees.levels).map_err(|e| FormatError::BadSection {
+            path: self.path.clone(),
+            tag: "BASE".into(),
+            detail: e.to_string(),
+        })
+    }
+
+    /// Reads everything.
+    pub fn contents(&self) -> Result<BakeContents, FormatError> {
+        Ok(BakeContents {
+            meta: self.meta()?,
+            basis: self.basis()?,
+        })
+    }
+
+    /// A summary for `bake info`.
+    pub fn info(&self) -> Result<FileInfo, FormatError> {
+        let meta = self.meta()?;
+        let b = self.section::<Basis>(TAG_BASIS)?;
+        let levels = (0..b.levels())
+            .map(|l| LevelInfo {
+                level: l as u32,
+                points: b.level_range(l).len() as u64,
+                disk_radius: b.disk_radii[l],
+                support_radius: b.level_range(l).next().map(|j| b.radii[j]).unwrap_or(0.0),
+            })
+            .collect();
+        Ok(FileInfo {
+            path: self.path.display().to_string(),
+            format_version: format!("{}.{}", self.header.major, self.header.minor),
+            file_bytes: self.header.file_len,
+            sections: self
+                .header
+                .sections
+                .iter()
+                .map(|e| SectionInfo {
+                    tag: e.tag_str(),
+                    offset: e.offset,
+                    stored_bytes: e.stored_len,
+                    raw_bytes: e.raw_len,
+                    compressed: e.compressed,
+                })
+                .collect(),
+            points: b.len() as u64,
+            levels,
+            meta,
+        })
+    }
+}
+
+/// `bake info` output.
+#[derive(Clone, Debug, Serialize)]
+pub struct FileInfo {
+    pub path: String,
+    pub format_version: String,
+    pub file_bytes: u64,
+    pub sections: Vec<SectionInfo>,
+    pub points: u64,
+    pub levels: Vec<LevelInfo>,
+    pub meta: Meta,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct SectionInfo {
+    pub tag: String,
+    pub offset: u64,
+    pub stored_bytes: u64,
+    pub raw_bytes: u64,
+    pub compressed: bool,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct LevelInfo {
+    pub level: u32,
+    pub points: u64,
+    pub disk_radius: f32,
+    pub support_radius: f32,
+}

@@ -1,0 +1,151 @@
+//! The `META` section: the scene's identity, every parameter, the tool version, the scene's
+//! default camera and light, and the bake's statistics.
+
+use serde::{Deserialize, Serialize};
+
+/// Derives both rkyv (for the file) and serde (for JSON output) on a plain data type.
+macro_rules! data {
+    ($(#[$m:meta])* pub struct $name:ident { $($(#[$fm:meta])* pub $f:ident : $t:ty),* $(,)? }) => {
+        $(#[$m])*
+        #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize,
+                 rkyv::Archive, rkyv::Serialize, rkyv::Deserialize)]
+        pub struct $name { $($(#[$fm])* pub $f: $t),* }
+    };
+}
+
+data! {
+    /// Everything a baked file records about how it was made.
+    pub struct Meta {
+        /// The tool and its version, e.g. `mlt-bake 0.1.0`.
+        pub tool: String,
+        pub scene: SceneInfo,
+        pub camera: CameraInfo,
+        pub light: LightInfo,
+        pub params: BasisParams,
+        pub stats: BasisStats,
+        /// Wall-clock timings; absent unless the bake was asked to record them, so that the
+        /// same inputs give a byte-identical file.
+        pub timings: Option<Timings>,
+    }
+}
+
+data! {
+    /// Where the scene came from.
+    pub struct SceneInfo {
+        /// The scene specification as given (manifest, mesh path or `builtin:` name).
+        pub source: String,
+        /// xxh3-64 of every input byte (mesh, materials, textures, manifest).
+        pub content_hash: u64,
+        pub triangles: u64,
+        /// Degenerate (zero-area) triangles dropped while loading.
+        pub degenerate_dropped: u64,
+        pub scale: f32,
+        /// The interior viewpoint point placement started from.
+        pub viewpoint: [f32; 3],
+        pub bounds_min: [f32; 3],
+        pub bounds_max: [f32; 3],
+    }
+}
+
+data! {
+    /// The scene's default camera (DESIGN.md conventions).
+    pub struct CameraInfo {
+        pub position: [f32; 3],
+        pub target: [f32; 3],
+        pub up: [f32; 3],
+        pub fovy_deg: f32,
+        pub width: u32,
+        pub height: u32,
+    }
+}
+
+data! {
+    /// The scene's default light.
+    pub struct LightInfo {
+        /// `point` or `spot`.
+        pub kind: String,
+        pub position: [f32; 3],
+        /// RGB radiant intensity, W/sr.
+        pub intensity: [f32; 3],
+        /// Spot axis (unit), zero for a point light.
+        pub direction: [f32; 3],
+        /// Spot full cone angle in degrees, 0 for a point light.
+        pub cone_deg: f32,
+        /// `hard` or `smooth` (glTF KHR_lights_punctual) spot falloff.
+        pub falloff: String,
+    }
+}
+
+data! {
+    /// Point placement and basis parameters (section 2.3).
+    pub struct BasisParams {
+        /// Number of hierarchy levels placed (receiver levels).
+        pub levels: u32,
+        /// The Poisson-disk radius `R_coarse` of level 0 (halved per level).
+        pub coarse_radius: f32,
+        /// The level-0 point count `R_coarse` was searched for, if one was asked.
+        pub coarse_count_target: Option<u32>,
+        pub f_squash: f32,
+        /// Support factor `C` on the coarsest and finest level (`r = C R`).
+        pub c_coarse: f32,
+        pub c_fine: f32,
+        /// A level ends after this many consecutive failed darts.
+        pub max_misses: u32,
+        /// Rays of the harmonic-mean-distance test, their length in units of `R`, and the
+        /// rejection threshold in units of `R`.
+        pub hmd_rays: u32,
+        pub hmd_range: f32,
+        pub hmd_reject: f32,
+        /// Importance particle path length and the bounces not deposited.
+        pub particle_bounces: u32,
+        pub skipped_bounces: u32,
+        pub seed: u64,
+    }
+}
+
+data! {
+    /// Statistics of one level.
+    pub struct LevelStats {
+        pub points: u64,
+        pub disk_radius: f32,
+        pub support_radius: f32,
+        /// Candidates tried (darts thrown) on this level.
+        pub darts: u64,
+        /// Darts rejected by the Poisson-disk test (Eq. 11).
+        pub disk_rejected: u64,
+        /// Darts that passed it but were rejected by the harmonic-mean-distance test.
+        pub hmd_rejected: u64,
+        /// Points of this level divided by points of the previous level.
+        pub growth: f32,
+    }
+}
+
+data! {
+    /// Counts from the bake (deterministic: they go in the file).
+    pub struct BasisStats {
+        pub particles: u64,
+        pub candidates: u64,
+        /// Rays cast: importance particles plus harmonic-mean-distance tests.
+        pub rays: u64,
+        pub points: u64,
+        pub levels: Vec<LevelStats>,
+        pub rtree_nodes: u64,
+        /// Points of a level `l >= 1` where no coarser level had support (Eq. 7 falls back to
+        /// the sample itself there).
+        pub points_without_coarser_support: u64,
+    }
+}
+
+data! {
+    /// Wall-clock seconds per stage.
+    pub struct Timings {
+        pub load_s: f64,
+        pub bvh_s: f64,
+        pub candidates_s: f64,
+        pub poisson_s: f64,
+        pub rtrees_s: f64,
+        pub write_s: f64,
+        pub total_s: f64,
+        pub threads: u32,
+    }
+}
