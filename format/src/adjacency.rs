@@ -93,7 +93,13 @@ mod tests {
         let pa = parents(&ib);
         let ch = children(&ib);
         let w = |i: usize, j: usize| {
-            weight(b.positions[j], b.normals[j], b.positions[i], b.normals[i], b.radii[i])
+            weight(
+                b.positions[j],
+                b.normals[j],
+                b.positions[i],
+                b.normals[i],
+                b.radii[i],
+            )
         };
         for i in 0..b.len() {
             let l = b.level_of(i);
@@ -104,7 +110,10 @@ mod tests {
                 .collect();
             assert_eq!(nb.row(i), &expect_nb[..], "neighbours of {i}");
             let expect_ch: Vec<u32> = if l + 1 < b.levels() {
-                b.level_range(l + 1).filter(|&c| w(i, c) > 0.0).map(|c| c as u32).collect()
+                b.level_range(l + 1)
+                    .filter(|&c| w(i, c) > 0.0)
+                    .map(|c| c as u32)
+                    .collect()
             } else {
                 vec![]
             };

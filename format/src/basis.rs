@@ -9,9 +9,7 @@ use std::ops::Range;
 use crate::error::FormatError;
 
 /// Points `p_j = (x_j, n_j)` with support radii `r_j`, grouped by level, coarsest first.
-#[derive(
-    Clone, Debug, Default, PartialEq, rkyv::Archive, rkyv::Serialize, rkyv::Deserialize,
-)]
+#[derive(Clone, Debug, Default, PartialEq, rkyv::Archive, rkyv::Serialize, rkyv::Deserialize)]
 pub struct Basis {
     pub positions: Vec<[f32; 3]>,
     /// Unit surface normals.

@@ -284,7 +284,11 @@ pub fn section_bytes<'a>(
         return Err(FormatError::BadSection {
             path: path.to_path_buf(),
             tag: e.tag_str(),
-            detail: format!("decompressed to {} bytes, expected {}", raw.len(), e.raw_len),
+            detail: format!(
+                "decompressed to {} bytes, expected {}",
+                raw.len(),
+                e.raw_len
+            ),
         });
     }
     let mut v = AlignedVec::<ALIGN>::with_capacity(raw.len());
@@ -300,8 +304,16 @@ mod tests {
         let a = vec![7u8; 1000];
         let b = b"hello".to_vec();
         encode(&[
-            SectionIn { tag: *b"AAAA", bytes: &a, compress },
-            SectionIn { tag: *b"BBBB", bytes: &b, compress: false },
+            SectionIn {
+                tag: *b"AAAA",
+                bytes: &a,
+                compress,
+            },
+            SectionIn {
+                tag: *b"BBBB",
+                bytes: &b,
+                compress: false,
+            },
         ])
         .unwrap()
     }
@@ -347,7 +359,10 @@ mod tests {
         let mut img = image(false);
         img[8] = 2;
         let e = parse_header(p, &img).unwrap_err();
-        assert!(matches!(e, FormatError::WrongVersion { major: 2, .. }), "{e}");
+        assert!(
+            matches!(e, FormatError::WrongVersion { major: 2, .. }),
+            "{e}"
+        );
         assert!(e.to_string().contains("t.mlt"));
         let e = parse_header(p, b"# not a baked file, just text\n").unwrap_err();
         assert!(matches!(e, FormatError::BadMagic { .. }));

@@ -187,9 +187,8 @@ impl BakedFile {
     fn section<T>(&self, tag: [u8; 4]) -> Result<T, FormatError>
     where
         T: rkyv::Archive,
-        T::Archived: for<'a> rkyv::bytecheck::CheckBytes<
-                rkyv::api::high::HighValidator<'a, rancor::Error>,
-            > + rkyv::Deserialize<T, rkyv::api::high::HighDeserializer<rancor::Error>>,
+        T::Archived: for<'a> rkyv::bytecheck::CheckBytes<rkyv::api::high::HighValidator<'a, rancor::Error>>
+            + rkyv::Deserialize<T, rkyv::api::high::HighDeserializer<rancor::Error>>,
     {
         let tag_str = String::from_utf8_lossy(&tag).into_owned();
         let entry = self
@@ -207,8 +206,8 @@ impl BakedFile {
             tag: tag_str.clone(),
             detail,
         };
-        let archived = rkyv::access::<T::Archived, rancor::Error>(&bytes)
-            .map_err(|e| bad(e.to_string()))?;
+        let archived =
+            rkyv::access::<T::Archived, rancor::Error>(&bytes).map_err(|e| bad(e.to_string()))?;
         rkyv::deserialize::<T, rancor::Error>(archived).map_err(|e| bad(e.to_string()))
     }
 

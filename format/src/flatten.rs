@@ -97,7 +97,10 @@ mod tests {
             reconstruct_flat(&ib, &flat, 1, x, n, &mut fl);
             max_diff = max_diff.max((h[0] - fl[0]).abs());
         }
-        assert!(max_diff < 0.05, "flat and hierarchical differ by {max_diff}");
+        assert!(
+            max_diff < 0.05,
+            "flat and hierarchical differ by {max_diff}"
+        );
     }
 
     #[test]

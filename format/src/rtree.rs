@@ -15,9 +15,7 @@ pub const LEAF_SIZE: usize = 4;
 /// `log2(n / LEAF_SIZE) + 1` levels).
 pub const MAX_DEPTH: usize = 64;
 
-#[derive(
-    Clone, Debug, Default, PartialEq, rkyv::Archive, rkyv::Serialize, rkyv::Deserialize,
-)]
+#[derive(Clone, Debug, Default, PartialEq, rkyv::Archive, rkyv::Serialize, rkyv::Deserialize)]
 pub struct RTree {
     pub node_min: Vec<[f32; 3]>,
     pub node_max: Vec<[f32; 3]>,
@@ -95,7 +93,11 @@ impl RTree {
 
     /// Calls `f(first, count, min, max)` for every node at `depth` (or leaf above it), the
     /// granularity at which a renderer culls groups of basis functions.
-    pub fn for_each_node_at_depth(&self, depth: usize, mut f: impl FnMut(&[u32], [f32; 3], [f32; 3])) {
+    pub fn for_each_node_at_depth(
+        &self,
+        depth: usize,
+        mut f: impl FnMut(&[u32], [f32; 3], [f32; 3]),
+    ) {
         if self.node_count.is_empty() {
             return;
         }
@@ -190,7 +192,9 @@ impl RTree {
                 }
             } else {
                 if first <= node + 1 || first >= n {
-                    return Err(format!("interior node {node} has a bad right child {first}"));
+                    return Err(format!(
+                        "interior node {node} has a bad right child {first}"
+                    ));
                 }
                 stack.push((first, depth + 1));
                 stack.push((node + 1, depth + 1));
@@ -267,12 +271,15 @@ mod tests {
     fn random_basis(n: usize, seed: u64) -> Basis {
         let mut s = seed;
         let mut next = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             ((s >> 40) as f32) / (1u64 << 24) as f32
         };
         let mut b = Basis::default();
         for _ in 0..n {
-            b.positions.push([next() * 10.0, next() * 10.0, next() * 10.0]);
+            b.positions
+                .push([next() * 10.0, next() * 10.0, next() * 10.0]);
             b.normals.push([0.0, 1.0, 0.0]);
             b.radii.push(0.2 + next());
         }

@@ -157,7 +157,9 @@ pub(crate) mod tests {
         b.level_offsets.push(0);
         let mut s = 12345u64;
         let mut rnd = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             ((s >> 40) as f32) / (1u64 << 24) as f32 - 0.5
         };
         for l in 0..levels {
@@ -200,7 +202,13 @@ pub(crate) mod tests {
         let alpha = vec![1.0f32; ib.basis.len()];
         let mut out = [f32::NAN];
         let s = ib.reconstruct(&alpha, 1, 0..2, far, [0.0, 0.0, 1.0], &mut out);
-        assert_eq!(s, Support { supported: 0, unsupported: 2 });
+        assert_eq!(
+            s,
+            Support {
+                supported: 0,
+                unsupported: 2
+            }
+        );
         assert_eq!(out[0], 0.0);
         // Back-facing query normal: no support either.
         let s = ib.reconstruct(&alpha, 1, 0..2, [0.5, 0.5, 0.0], [0.0, 0.0, -1.0], &mut out);

@@ -1,0 +1,18 @@
+//! Errors of the bake library.
+
+use mlt_format::FormatError;
+use mlt_scenes::SceneError;
+
+#[derive(Debug, thiserror::Error)]
+pub enum BakeError {
+    #[error(transparent)]
+    Scene(#[from] SceneError),
+    #[error(transparent)]
+    Format(#[from] FormatError),
+    #[error("invalid parameter: {0}")]
+    InvalidParameter(String),
+    #[error("{scene}: no importance particle from the viewpoint {viewpoint:?} reached a surface; is the viewpoint inside the scene?")]
+    NoCandidates { scene: String, viewpoint: [f32; 3] },
+    #[error("{scene}: the viewpoint {viewpoint:?} is not finite")]
+    BadViewpoint { scene: String, viewpoint: [f32; 3] },
+}

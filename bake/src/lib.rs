@@ -1,0 +1,24 @@
+//! The offline bake of meshless hierarchical light transport (Lehtinen et al. 2008): scene in,
+//! basis file out. The `bake` binary is a thin command line over [`bake_scene`].
+//!
+//! - [`candidates`]: importance particles from the viewpoint (section 2.3);
+//! - [`poisson`], [`grid`]: dart throwing in the metric of Eq. 11 with the harmonic mean
+//!   distance test; [`placement`]: the hierarchy of levels and the `R_coarse` search;
+//! - [`pipeline`]: everything together, with statistics; [`report`]: human-readable output.
+
+pub mod candidates;
+pub mod error;
+pub mod grid;
+pub mod observer;
+pub mod params;
+pub mod pipeline;
+pub mod placement;
+pub mod poisson;
+pub mod report;
+pub mod rng;
+pub mod sampling;
+
+pub use error::BakeError;
+pub use observer::{Observer, Silent};
+pub use params::BakeOptions;
+pub use pipeline::{bake_scene, tool_version, BakeOutput};

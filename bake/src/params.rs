@@ -1,0 +1,165 @@
+//! Bake parameters: the paper's defaults, overridden by a manifest's `[bake]` table, overridden
+//! by the command line.
+
+use mlt_format::meta::BasisParams;
+use mlt_scenes::BakeSettings;
+
+use crate::error::BakeError;
+use crate::placement::Coarse;
+
+/// The paper's values (section 2.3, DESIGN.md).
+pub const DEFAULT_LEVELS: u32 = 6;
+pub const DEFAULT_COARSE_COUNT: u32 = 339;
+pub const C_COARSE: f32 = 1.5;
+pub const C_FINE: f32 = 2.5;
+pub const MAX_MISSES: u32 = 2000;
+pub const HMD_RAYS: u32 = 16;
+pub const HMD_RANGE: f32 = 3.0;
+pub const HMD_REJECT: f32 = 1.0 / 6.0;
+pub const PARTICLE_BOUNCES: u32 = 30;
+pub const SKIPPED_BOUNCES: u32 = 3;
+/// More levels than this would need more than 2^(2*16) points per coarse point.
+pub const MAX_LEVELS: u32 = 16;
+
+/// What the user asked for; `None` means "the manifest's value, else the default".
+#[derive(Clone, Debug, Default)]
+pub struct BakeOptions {
+    pub receiver_levels: Option<u32>,
+    pub coarse_count: Option<u32>,
+    pub coarse_radius: Option<f32>,
+    pub seed: Option<u64>,
+    /// Override the dart thrower's consecutive-miss limit (paper: 2000).
+    pub max_misses: Option<u32>,
+    /// Store wall-clock timings in the file (makes it differ from run to run).
+    pub record_timings: bool,
+    /// zstd-compress the file's sections.
+    pub compress: bool,
+}
+
+/// Resolves the parameters, checking each.
+pub fn resolve(
+    opts: &BakeOptions,
+    scene: &BakeSettings,
+) -> Result<(BasisParams, Coarse), BakeError> {
+    let bad = |m: String| Err(BakeError::InvalidParameter(m));
+    let levels = opts
+        .receiver_levels
+        .or(scene.receiver_levels)
+        .unwrap_or(DEFAULT_LEVELS);
+    if !(1..=MAX_LEVELS).contains(&levels) {
+        return bad(format!(
+            "receiver levels must be 1..={MAX_LEVELS}, got {levels}"
+        ));
+    }
+    // The command line's choice of count or radius wins over the manifest's.
+    let coarse = match (opts.coarse_count, opts.coarse_radius) {
+        (Some(_), Some(_)) => return bad("give a coarse count or a coarse radius, not both".into()),
+        (Some(k), None) => Coarse::Count(k),
+        (None, Some(r)) => Coarse::Radius(r),
+        (None, None) => match (scene.coarse_count, scene.coarse_radius) {
+            (Some(_), Some(_)) => {
+                return bad("the manifest sets both coarse_count and coarse_radius".into())
+            }
+            (Some(k), None) => Coarse::Count(k),
+            (None, Some(r)) => Coarse::Radius(r),
+            (None, None) => Coarse::Count(DEFAULT_COARSE_COUNT),
+        },
+    };
+    match coarse {
+        Coarse::Count(0) => return bad("the coarse count must be at least 1".into()),
+        Coarse::Radius(r) if !(r.is_finite() && r > 0.0) => {
+            return bad(format!(
+                "the coarse radius must be positive and finite, got {r}"
+            ))
+        }
+        _ => {}
+    }
+    let max_misses = opts.max_misses.unwrap_or(MAX_MISSES);
+    if max_misses == 0 {
+        return bad("the miss limit must be at least 1".into());
+    }
+    Ok((
+        BasisParams {
+            levels,
+            coarse_radius: match coarse {
+                Coarse::Radius(r) => r,
+                Coarse::Count(_) => 0.0,
+            },
+            coarse_count_target: match coarse {
+                Coarse::Count(k) => Some(k),
+                Coarse::Radius(_) => None,
+            },
+            f_squash: mlt_format::kernel::F_SQUASH,
+            c_coarse: C_COARSE,
+            c_fine: C_FINE,
+            max_misses,
+            hmd_rays: HMD_RAYS,
+            hmd_range: HMD_RANGE,
+            hmd_reject: HMD_REJECT,
+            particle_bounces: PARTICLE_BOUNCES,
+            skipped_bounces: SKIPPED_BOUNCES,
+            seed: opts.seed.or(scene.seed).unwrap_or(1),
+        },
+        coarse,
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn command_line_overrides_manifest_overrides_defaults() {
+        let scene = BakeSettings {
+            receiver_levels: Some(4),
+            coarse_radius: Some(0.5),
+            ..Default::default()
+        };
+        let (p, c) = resolve(&BakeOptions::default(), &scene).unwrap();
+        assert_eq!((p.levels, c), (4, Coarse::Radius(0.5)));
+        let opts = BakeOptions {
+            receiver_levels: Some(2),
+            coarse_count: Some(10),
+            ..Default::default()
+        };
+        let (p, c) = resolve(&opts, &scene).unwrap();
+        assert_eq!((p.levels, c), (2, Coarse::Count(10)));
+        let (p, c) = resolve(&BakeOptions::default(), &BakeSettings::default()).unwrap();
+        assert_eq!((p.levels, c), (6, Coarse::Count(339)));
+    }
+
+    #[test]
+    fn bad_values_are_refused_with_a_reason() {
+        let s = BakeSettings::default();
+        for opts in [
+            BakeOptions {
+                receiver_levels: Some(0),
+                ..Default::default()
+            },
+            BakeOptions {
+                receiver_levels: Some(40),
+                ..Default::default()
+            },
+            BakeOptions {
+                coarse_count: Some(0),
+                ..Default::default()
+            },
+            BakeOptions {
+                coarse_radius: Some(f32::NAN),
+                ..Default::default()
+            },
+            BakeOptions {
+                coarse_radius: Some(-1.0),
+                ..Default::default()
+            },
+            BakeOptions {
+                coarse_radius: Some(1.0),
+                coarse_count: Some(3),
+                ..Default::default()
+            },
+        ] {
+            let e = resolve(&opts, &s).unwrap_err();
+            assert!(!e.to_string().is_empty());
+        }
+    }
+}

@@ -1,0 +1,251 @@
+//! The bake: scene to basis file contents.
+
+use std::time::Instant;
+
+use glam::Vec3;
+use mlt_format::meta::{BasisStats, CameraInfo, LightInfo, Meta, SceneInfo, Timings};
+use mlt_format::shepard::MIN_WEIGHT_SUM;
+use mlt_format::{BakeContents, IndexedBasis};
+use mlt_scenes::{LightKind, Scene, SpotFalloff};
+
+use crate::candidates::CandidatePool;
+use crate::error::BakeError;
+use crate::observer::Observer;
+use crate::params::{resolve, BakeOptions};
+use crate::placement::{find_coarse_radius, place, Coarse};
+use crate::poisson::DartSettings;
+
+/// The tool name and version recorded in files.
+pub fn tool_version() -> String {
+    format!("mlt-bake {}", env!("CARGO_PKG_VERSION"))
+}
+
+/// What a bake produced.
+pub struct BakeOutput {
+    pub contents: BakeContents,
+    /// Always measured; stored in the file only with `record_timings`.
+    pub timings: Timings,
+    pub warnings: Vec<String>,
+}
+
+/// Bakes a loaded scene (in the current rayon pool; results do not depend on its size).
+pub fn bake_scene(
+    scene: &Scene,
+    opts: &BakeOptions,
+    obs: &dyn Observer,
+) -> Result<BakeOutput, BakeError> {
+    let t_total = Instant::now();
+    let mut warnings = scene.warnings.clone();
+    let (mut params, coarse) = resolve(opts, &scene.bake)?;
+    let viewpoint = scene.viewpoint;
+    if !viewpoint.is_finite() {
+        return Err(BakeError::BadViewpoint {
+            scene: scene.source.clone(),
+            viewpoint: viewpoint.to_array(),
+        });
+    }
+
+    obs.stage("ray-casting structure");
+    let t = Instant::now();
+    let caster = scene.build_caster();
+    let bvh_s = t.elapsed().as_secs_f64();
+    obs.done(
+        "ray-casting structure",
+        bvh_s,
+        &format!("{} triangles", scene.triangle_count()),
+    );
+
+    obs.stage("candidates");
+    let mut pool = CandidatePool::new(
+        caster.as_ref(),
+        viewpoint,
+        params.seed,
+        params.particle_bounces,
+        params.skipped_bounces,
+    );
+    // The first batch; the dart thrower grows the pool lazily from here.
+    while pool.candidates.is_empty() {
+        if pool.grow() == 0 && pool.particles >= 1 << 16 {
+            return Err(BakeError::NoCandidates {
+                scene: scene.source.clone(),
+                viewpoint: viewpoint.to_array(),
+            });
+        }
+    }
+    let first_batch_s = pool.seconds;
+    obs.done(
+        "candidates",
+        first_batch_s,
+        &format!(
+            "{} candidates from {} particles",
+            pool.candidates.len(),
+            pool.particles
+        ),
+    );
+
+    let settings = DartSettings {
+        max_misses: params.max_misses,
+        hmd_rays: params.hmd_rays,
+        hmd_range: params.hmd_range,
+        hmd_reject: params.hmd_reject,
+        seed: params.seed,
+    };
+    obs.stage("poisson disk");
+    let t = Instant::now();
+    let r_coarse = match coarse {
+        Coarse::Radius(r) => r,
+        Coarse::Count(k) => {
+            let (r, n) = find_coarse_radius(&mut pool, caster.as_ref(), k, &settings);
+            obs.done(
+                "coarse radius search",
+                t.elapsed().as_secs_f64(),
+                &format!("R_coarse = {r:.5} gives {n} level-0 points (asked {k})"),
+            );
+            r
+        }
+    };
+    params.coarse_radius = r_coarse;
+    let levels = params.levels as usize;
+    let placement = place(
+        &mut pool,
+        caster.as_ref(),
+        levels,
+        r_coarse,
+        params.c_coarse,
+        params.c_fine,
+        &settings,
+        |l, _| obs.progress(l as u64 + 1, levels as u64),
+    );
+    // Candidates are also generated lazily inside the dart thrower; count that time there.
+    let candidates_s = pool.seconds;
+    let poisson_s = t.elapsed().as_secs_f64() - (pool.seconds - first_batch_s);
+    for &l in &placement.dry_levels {
+        let w = format!(
+            "level {l}: the candidate pool stopped growing before the level saturated; it may be sparser than its radius allows"
+        );
+        obs.warn(&w);
+        warnings.push(w);
+    }
+    if placement.basis.level_range(0).is_empty() {
+        return Err(BakeError::NoCandidates {
+            scene: scene.source.clone(),
+            viewpoint: viewpoint.to_array(),
+        });
+    }
+    let counts: Vec<String> = placement
+        .levels
+        .iter()
+        .map(|s| s.points.to_string())
+        .collect();
+    obs.done(
+        "poisson disk",
+        poisson_s,
+        &format!("points per level: {}", counts.join(" / ")),
+    );
+
+    obs.stage("r-trees");
+    let t = Instant::now();
+    let ib = IndexedBasis::build(placement.basis)?;
+    let rtrees_s = t.elapsed().as_secs_f64();
+    let rtree_nodes: u64 = ib.trees.iter().map(|t| t.node_count() as u64).sum();
+    obs.done("r-trees", rtrees_s, &format!("{rtree_nodes} nodes"));
+
+    let unsupported = count_points_without_coarser_support(&ib);
+    if unsupported > 0 {
+        let w = format!(
+            "{unsupported} points of finer levels lie where no coarser level has support; their coefficients carry the full value there"
+        );
+        obs.warn(&w);
+        warnings.push(w);
+    }
+
+    let (bounds_min, bounds_max) = caster.bounds();
+    let timings = Timings {
+        load_s: 0.0,
+        bvh_s,
+        candidates_s,
+        poisson_s,
+        rtrees_s,
+        write_s: 0.0,
+        total_s: t_total.elapsed().as_secs_f64(),
+        threads: rayon::current_num_threads() as u32,
+    };
+    let stats = BasisStats {
+        particles: pool.particles,
+        candidates: pool.candidates.len() as u64,
+        rays: pool.rays + placement.hmd_rays,
+        points: ib.basis.len() as u64,
+        levels: placement.levels,
+        rtree_nodes,
+        points_without_coarser_support: unsupported,
+    };
+    let meta = Meta {
+        tool: tool_version(),
+        scene: SceneInfo {
+            source: scene.source.clone(),
+            content_hash: scene.content_hash,
+            triangles: scene.triangle_count(),
+            degenerate_dropped: match &scene.geometry {
+                mlt_scenes::Geometry::Mesh(m) => m.degenerate_dropped,
+                _ => 0,
+            },
+            scale: scene.scale,
+            viewpoint: viewpoint.to_array(),
+            bounds_min: bounds_min.to_array(),
+            bounds_max: bounds_max.to_array(),
+        },
+        camera: CameraInfo {
+            position: scene.camera.position,
+            target: scene.camera.target,
+            up: scene.camera.up,
+            fovy_deg: scene.camera.fovy_deg,
+            width: scene.camera.width,
+            height: scene.camera.height,
+        },
+        light: light_info(scene),
+        params,
+        stats,
+        timings: opts.record_timings.then_some(timings.clone()),
+    };
+    Ok(BakeOutput {
+        contents: BakeContents { meta, basis: ib },
+        timings,
+        warnings,
+    })
+}
+
+fn light_info(scene: &Scene) -> LightInfo {
+    let l = &scene.light;
+    let spot = l.kind == LightKind::Spot;
+    LightInfo {
+        kind: if spot { "spot" } else { "point" }.into(),
+        position: l.position,
+        intensity: l.intensity,
+        direction: match (spot, l.direction) {
+            (true, Some(d)) => Vec3::from(d).normalize_or_zero().to_array(),
+            _ => [0.0; 3],
+        },
+        cone_deg: if spot { l.cone_deg.unwrap_or(0.0) } else { 0.0 },
+        falloff: match l.falloff {
+            SpotFalloff::Hard => "hard",
+            SpotFalloff::Smooth => "smooth",
+        }
+        .into(),
+    }
+}
+
+/// Points of levels >= 1 at which no coarser level has support.
+fn count_points_without_coarser_support(ib: &IndexedBasis) -> u64 {
+    let b = &ib.basis;
+    let mut count = 0;
+    for l in 1..b.levels() {
+        for j in b.level_range(l) {
+            let supported =
+                (0..l).any(|k| ib.weight_sum(k, b.positions[j], b.normals[j]) > MIN_WEIGHT_SUM);
+            if !supported {
+                count += 1;
+            }
+        }
+    }
+    count
+}

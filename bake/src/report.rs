@@ -1,0 +1,170 @@
+//! Human-readable summaries: the table printed after a bake and `bake info`.
+
+use std::fmt::Write;
+
+use mlt_format::file::FileInfo;
+use mlt_format::meta::{Meta, Timings};
+
+fn hms(s: f64) -> String {
+    if s >= 60.0 {
+        format!("{}:{:04.1}", (s / 60.0).floor() as u64, s % 60.0)
+    } else {
+        format!("{s:.2} s")
+    }
+}
+
+/// Bytes in MB (10^6), as the paper's Table 1.
+pub fn mb(bytes: u64) -> String {
+    format!("{:.2} MB", bytes as f64 / 1e6)
+}
+
+/// The statistics table printed at the end of a bake.
+pub fn bake_table(meta: &Meta, timings: &Timings, file_bytes: u64) -> String {
+    let s = &meta.stats;
+    let p = &meta.params;
+    let mut o = String::new();
+    let _ = writeln!(o, "scene         {}", meta.scene.source);
+    let _ = writeln!(
+        o,
+        "triangles     {} ({} degenerate dropped)",
+        meta.scene.triangles, meta.scene.degenerate_dropped
+    );
+    let _ = writeln!(
+        o,
+        "levels        {}   R_coarse {:.5}   C {}..{}   seed {}",
+        p.levels, p.coarse_radius, p.c_coarse, p.c_fine, p.seed
+    );
+    let _ = writeln!(
+        o,
+        "candidates    {} from {} particles; rays {}",
+        s.candidates, s.particles, s.rays
+    );
+    let _ = writeln!(
+        o,
+        "level   points   disk R     support r  darts      disk-rej   hmd-rej   growth"
+    );
+    for (l, ls) in s.levels.iter().enumerate() {
+        let _ = writeln!(
+            o,
+            "{l:>5} {:>8}   {:<9.5}  {:<9.5}  {:<9}  {:<9}  {:<8}  {}",
+            ls.points,
+            ls.disk_radius,
+            ls.support_radius,
+            ls.darts,
+            ls.disk_rejected,
+            ls.hmd_rejected,
+            if l == 0 {
+                "-".to_string()
+            } else {
+                format!("{:.2}x", ls.growth)
+            }
+        );
+    }
+    let _ = writeln!(
+        o,
+        "basis         {} points (level 0: {}), {} R-tree nodes",
+        s.points,
+        s.levels.first().map(|l| l.points).unwrap_or(0),
+        s.rtree_nodes
+    );
+    if s.points_without_coarser_support > 0 {
+        let _ = writeln!(
+            o,
+            "unsupported   {} finer points outside every coarser support",
+            s.points_without_coarser_support
+        );
+    }
+    let _ = writeln!(
+        o,
+        "time          total {} = load {} + bvh {} + candidates {} + poisson disk {} + r-trees {} + write {}  ({} threads)",
+        hms(timings.total_s),
+        hms(timings.load_s),
+        hms(timings.bvh_s),
+        hms(timings.candidates_s),
+        hms(timings.poisson_s),
+        hms(timings.rtrees_s),
+        hms(timings.write_s),
+        timings.threads
+    );
+    if timings.total_s > 0.0 {
+        let _ = writeln!(
+            o,
+            "rays/s        {:.0}",
+            s.rays as f64 / (timings.candidates_s + timings.poisson_s).max(1e-9)
+        );
+    }
+    let _ = writeln!(o, "file          {}", mb(file_bytes));
+    o
+}
+
+/// `bake info`.
+pub fn info_text(info: &FileInfo) -> String {
+    let m = &info.meta;
+    let mut o = String::new();
+    let _ = writeln!(o, "file          {} ({})", info.path, mb(info.file_bytes));
+    let _ = writeln!(
+        o,
+        "format        {}   written by {}",
+        info.format_version, m.tool
+    );
+    let _ = writeln!(
+        o,
+        "scene         {}   hash {:016x}   {} triangles   scale {}",
+        m.scene.source, m.scene.content_hash, m.scene.triangles, m.scene.scale
+    );
+    let _ = writeln!(o, "viewpoint     {:?}", m.scene.viewpoint);
+    let _ = writeln!(
+        o,
+        "camera        {:?} -> {:?}  fovy {}  {}x{}",
+        m.camera.position, m.camera.target, m.camera.fovy_deg, m.camera.width, m.camera.height
+    );
+    let _ = writeln!(
+        o,
+        "light         {} at {:?}, intensity {:?} W/sr",
+        m.light.kind, m.light.position, m.light.intensity
+    );
+    let p = &m.params;
+    let _ = writeln!(
+        o,
+        "parameters    levels {}  R_coarse {:.5}{}  F_squash {}  C {}..{}  misses {}  hmd {} rays x {}R, reject < {:.4}R  particles {} bounces (skip {})  seed {}",
+        p.levels,
+        p.coarse_radius,
+        p.coarse_count_target.map(|k| format!(" (target {k} level-0 points)")).unwrap_or_default(),
+        p.f_squash,
+        p.c_coarse,
+        p.c_fine,
+        p.max_misses,
+        p.hmd_rays,
+        p.hmd_range,
+        p.hmd_reject,
+        p.particle_bounces,
+        p.skipped_bounces,
+        p.seed
+    );
+    let _ = writeln!(o, "points        {}", info.points);
+    let _ = writeln!(o, "level   points   disk R     support r");
+    for l in &info.levels {
+        let _ = writeln!(
+            o,
+            "{:>5} {:>8}   {:<9.5}  {:<9.5}",
+            l.level, l.points, l.disk_radius, l.support_radius
+        );
+    }
+    let _ = writeln!(o, "section  offset      stored       raw          zstd");
+    for s in &info.sections {
+        let _ = writeln!(
+            o,
+            "{:<8} {:<11} {:<12} {:<12} {}",
+            s.tag, s.offset, s.stored_bytes, s.raw_bytes, s.compressed
+        );
+    }
+    if let Some(t) = &m.timings {
+        let _ = writeln!(
+            o,
+            "recorded time total {} ({} threads)",
+            hms(t.total_s),
+            t.threads
+        );
+    }
+    o
+}

@@ -1,0 +1,130 @@
+//! The `bake` command line: exit codes, messages, files.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+fn bake() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_bake"))
+}
+
+fn temp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("mlt-cli-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+#[test]
+fn bakes_a_builtin_writes_stats_and_reports_info() {
+    let d = temp("ok");
+    let out = d.join("c.mlt");
+    let stats = d.join("c.json");
+    let r = bake()
+        .args([
+            "builtin:cornell",
+            "--receiver-levels",
+            "2",
+            "--coarse-count",
+            "20",
+            "--threads",
+            "2",
+            "-o",
+        ])
+        .arg(&out)
+        .arg("--stats-json")
+        .arg(&stats)
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let err = String::from_utf8_lossy(&r.stderr);
+    // Not a terminal: plain log lines per stage, then the table.
+    assert!(err.contains("poisson disk:"), "{err}");
+    assert!(err.contains("level   points"), "{err}");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
+    let levels = json["meta"]["stats"]["levels"].as_array().unwrap();
+    assert_eq!(levels.len(), 2);
+    assert_eq!(
+        json["file_bytes"].as_u64().unwrap(),
+        std::fs::metadata(&out).unwrap().len()
+    );
+
+    let r = bake().arg("info").arg(&out).arg("--json").output().unwrap();
+    assert!(r.status.success());
+    let info: serde_json::Value = serde_json::from_slice(&r.stdout).unwrap();
+    assert_eq!(info["format_version"], "1.0");
+    assert_eq!(info["meta"]["scene"]["source"], "builtin:cornell");
+    let total: u64 = info["levels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|l| l["points"].as_u64().unwrap())
+        .sum();
+    assert_eq!(total, info["points"].as_u64().unwrap());
+    let r = bake().arg("info").arg(&out).output().unwrap();
+    assert!(String::from_utf8_lossy(&r.stdout).contains("R_coarse"));
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+#[test]
+fn a_failed_bake_names_the_problem_and_leaves_the_old_output_alone() {
+    let d = temp("fail");
+    let out = d.join("keep.mlt");
+    std::fs::write(&out, b"previous contents").unwrap();
+    let bad = d.join("broken.obj");
+    std::fs::write(&bad, "v 0 0 0\nv 1 0 0\nv 0 nan 1\nf 1 2 3\n").unwrap();
+    let r = bake().arg(&bad).arg("-o").arg(&out).output().unwrap();
+    assert!(!r.status.success());
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(err.contains("broken.obj"), "{err}");
+    assert_eq!(std::fs::read(&out).unwrap(), b"previous contents");
+
+    let r = bake()
+        .args(["builtin:sphere?albedo=0.5&colour=3"])
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(!r.status.success());
+    assert!(String::from_utf8_lossy(&r.stderr).contains("colour"));
+
+    let r = bake()
+        .args(["builtin:cornell", "--receiver-levels", "0"])
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(!r.status.success());
+    assert!(String::from_utf8_lossy(&r.stderr).contains("levels"));
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+#[test]
+fn info_on_a_damaged_file_fails_with_its_name() {
+    let d = temp("damaged");
+    let f = d.join("trunc.mlt");
+    let r = bake()
+        .args([
+            "builtin:cornell",
+            "--receiver-levels",
+            "1",
+            "--coarse-count",
+            "10",
+            "-q",
+            "-o",
+        ])
+        .arg(&f)
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let bytes = std::fs::read(&f).unwrap();
+    std::fs::write(&f, &bytes[..bytes.len() - 7]).unwrap();
+    let r = bake().arg("info").arg(&f).output().unwrap();
+    assert!(!r.status.success());
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(
+        err.contains("trunc.mlt") && err.contains("truncated"),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&d);
+}

@@ -1,0 +1,572 @@
+//! glTF 2.0 (`.gltf` / `.glb`) loading through the gltf crate.
+//!
+//! The default scene (or, without one, every scene's root nodes) is flattened into one
+//! world-space [`Mesh`]: node transforms are applied to positions, and their inverse
+//! transpose to normals; mirroring transforms flip the winding back. Only triangle-list
+//! primitives are used (others are skipped with a warning). The albedo is the base colour
+//! factor (already linear) times the base colour texture (sRGB, decoded to linear);
+//! primitives without a material get grey 0.5, like OBJ faces without one. Texture
+//! coordinates are stored unchanged: glTF's `v = 0` is the top row, as in
+//! [`crate::texture`].
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use glam::{Mat3, Mat4, Vec2, Vec3};
+use xxhash_rust::xxh3::Xxh3;
+
+use crate::error::SceneError;
+use crate::mesh::{Material, Mesh, DEFAULT_ALBEDO};
+use crate::obj::warn;
+use crate::texture::{srgb_to_linear, Texture};
+
+/// Deeper node hierarchies than this are treated as cyclic.
+const MAX_NODE_DEPTH: usize = 256;
+
+/// Loads a glTF or GLB file, scaling world positions by `scale`. Returns the mesh
+/// (zero-area triangles dropped), the warnings, and the xxh3-64 hash of the file, its buffers
+/// and its decoded images.
+pub fn load_gltf(path: &Path, scale: f32) -> Result<(Mesh, Vec<String>, u64), SceneError> {
+    let err = |message: String| SceneError::Gltf {
+        path: path.to_path_buf(),
+        message,
+    };
+    if !scale.is_finite() || scale <= 0.0 {
+        return Err(err(format!(
+            "scale must be finite and positive, got {scale}"
+        )));
+    }
+    let bytes = std::fs::read(path).map_err(|e| SceneError::io(path, e))?;
+    let mut hasher = Xxh3::new();
+    hasher.update(&bytes);
+    let gltf::Gltf { document, blob } =
+        gltf::Gltf::from_slice(&bytes).map_err(|e| err(e.to_string()))?;
+    let base = path.parent().unwrap_or(Path::new(""));
+    let buffers = gltf::import_buffers(&document, Some(base), blob)
+        .map_err(|e| err(format!("buffers: {e}")))?;
+    for b in &buffers {
+        hasher.update(&b.0);
+    }
+    let mut warnings = Vec::new();
+
+    let mut mesh = Mesh::default();
+    let mut loader = Loader {
+        path,
+        base,
+        buffers: &buffers,
+        document: &document,
+        mesh: &mut mesh,
+        warnings: &mut warnings,
+        hasher: &mut hasher,
+        scale,
+        material_index: HashMap::new(),
+        image_texture: HashMap::new(),
+        default_material: None,
+        skipped_modes: 0,
+    };
+    let roots: Vec<gltf::Node> = match document.default_scene() {
+        Some(scene) => scene.nodes().collect(),
+        None => {
+            if document.scenes().len() > 0 {
+                document.scenes().flat_map(|s| s.nodes()).collect()
+            } else {
+                // No scenes at all: treat nodes that are nobody's child as roots.
+                let children: std::collections::HashSet<usize> = document
+                    .nodes()
+                    .flat_map(|n| n.children().map(|c| c.index()))
+                    .collect();
+                document
+                    .nodes()
+                    .filter(|n| !children.contains(&n.index()))
+                    .collect()
+            }
+        }
+    };
+    for node in roots {
+        loader.visit(&node, Mat4::IDENTITY, 0)?;
+    }
+    if loader.skipped_modes > 0 {
+        let n = loader.skipped_modes;
+        warn(
+            loader.warnings,
+            format!(
+                "{}: skipped {n} non-triangle primitives (points, lines, strips or fans)",
+                path.display()
+            ),
+        );
+    }
+
+    let absent = mesh.sanitize_normals();
+    if absent > 0 {
+        warn(
+            &mut warnings,
+            format!(
+                "{}: {absent} vertex normals are zero or non-finite; those vertices use the face normal",
+                path.display()
+            ),
+        );
+    }
+    mesh.drop_degenerate_triangles(path);
+    mesh.validate(path)?;
+    Ok((mesh, warnings, hasher.digest()))
+}
+
+/// Traversal state while flattening the node hierarchy.
+struct Loader<'a> {
+    path: &'a Path,
+    base: &'a Path,
+    buffers: &'a [gltf::buffer::Data],
+    document: &'a gltf::Document,
+    mesh: &'a mut Mesh,
+    warnings: &'a mut Vec<String>,
+    hasher: &'a mut Xxh3,
+    scale: f32,
+    /// glTF material index → our material index.
+    material_index: HashMap<usize, u32>,
+    /// glTF image index → our texture index (`None`: failed to load, warned once).
+    image_texture: HashMap<usize, Option<u32>>,
+    default_material: Option<u32>,
+    skipped_modes: usize,
+}
+
+impl Loader<'_> {
+    fn error(&self, message: String) -> SceneError {
+        SceneError::Gltf {
+            path: self.path.to_path_buf(),
+            message,
+        }
+    }
+
+    fn visit(&mut self, node: &gltf::Node, parent: Mat4, depth: usize) -> Result<(), SceneError> {
+        if depth > MAX_NODE_DEPTH {
+            return Err(self.error(format!(
+                "node {} is nested more than {MAX_NODE_DEPTH} deep (cyclic hierarchy?)",
+                node.index()
+            )));
+        }
+        let local = Mat4::from_cols_array_2d(&node.transform().matrix());
+        if !local.is_finite() {
+            return Err(SceneError::NonFinite {
+                path: self.path.to_path_buf(),
+                what: format!("node {} transform", node.index()),
+            });
+        }
+        let world = parent * local;
+        if let Some(m) = node.mesh() {
+            for primitive in m.primitives() {
+                self.add_primitive(&m, &primitive, world)?;
+            }
+        }
+        for child in node.children() {
+            self.visit(&child, world, depth + 1)?;
+        }
+        Ok(())
+    }
+
+    fn add_primitive(
+        &mut self,
+        m: &gltf::Mesh,
+        primitive: &gltf::Primitive,
+        world: Mat4,
+    ) -> Result<(), SceneError> {
+        if primitive.mode() != gltf::mesh::Mode::Triangles {
+            self.skipped_modes += 1;
+            return Ok(());
+        }
+        let (material, tex_coord) = self.material(&primitive.material());
+        let buffers = self.buffers;
+        let reader = primitive.reader(|b| buffers.get(b.index()).map(|d| d.0.as_slice()));
+        let Some(positions) = reader.read_positions() else {
+            warn(
+                self.warnings,
+                format!(
+                    "{}: mesh {} primitive {} has no POSITION; skipped",
+                    self.path.display(),
+                    m.index(),
+                    primitive.index()
+                ),
+            );
+            return Ok(());
+        };
+        let base = self.mesh.positions.len();
+        let mut count = 0usize;
+        for (k, p) in positions.enumerate() {
+            let local = Vec3::from(p);
+            if !local.is_finite() {
+                return Err(SceneError::NonFinite {
+                    path: self.path.to_path_buf(),
+                    what: format!(
+                        "mesh {} primitive {} vertex {k} position",
+                        m.index(),
+                        primitive.index()
+                    ),
+                });
+            }
+            let p = world.transform_point3(local) * self.scale;
+            if !p.is_finite() {
+                return Err(SceneError::NonFinite {
+                    path: self.path.to_path_buf(),
+                    what: format!(
+                        "mesh {} primitive {} vertex {k} position (after transform)",
+                        m.index(),
+                        primitive.index()
+                    ),
+                });
+            }
+            self.mesh.positions.push(p);
+            count += 1;
+        }
+
+        // Normals: inverse transpose of the linear part. Missing ones are "absent" (zero).
+        let linear = Mat3::from_mat4(world);
+        let normal_matrix = linear.inverse().transpose();
+        let normals: Vec<Vec3> = reader
+            .read_normals()
+            .map(|it| it.map(|n| normal_matrix * Vec3::from(n)).collect())
+            .unwrap_or_default();
+        let normals_ok = normals.len() == count;
+        if normals_ok && self.mesh.normals.is_empty() && base > 0 {
+            self.mesh.normals.resize(base, Vec3::ZERO);
+        }
+        if normals_ok {
+            self.mesh.normals.extend(normals);
+        } else if !self.mesh.normals.is_empty() {
+            self.mesh
+                .normals
+                .extend(std::iter::repeat_n(Vec3::ZERO, count));
+        }
+
+        let uvs: Vec<Vec2> = reader
+            .read_tex_coords(tex_coord)
+            .map(|it| it.into_f32().map(Vec2::from).collect())
+            .unwrap_or_default();
+        let uvs_ok = uvs.len() == count;
+        if uvs_ok && self.mesh.uvs.is_empty() && base > 0 {
+            self.mesh.uvs.resize(base, Vec2::ZERO);
+        }
+        if uvs_ok {
+            if let Some(k) = uvs.iter().position(|uv| !uv.is_finite()) {
+                return Err(SceneError::NonFinite {
+                    path: self.path.to_path_buf(),
+                    what: format!(
+                        "mesh {} primitive {} vertex {k} texture coordinate",
+                        m.index(),
+                        primitive.index()
+                    ),
+                });
+            }
+            self.mesh.uvs.extend(uvs);
+        } else if !self.mesh.uvs.is_empty() {
+            self.mesh.uvs.extend(std::iter::repeat_n(Vec2::ZERO, count));
+        }
+
+        let indices: Vec<u32> = match reader.read_indices() {
+            Some(it) => it.into_u32().collect(),
+            None => (0..count as u32).collect(),
+        };
+        if indices.len() % 3 != 0 {
+            warn(
+                self.warnings,
+                format!(
+                    "{}: mesh {} primitive {} has {} indices, not a multiple of 3; the rest is ignored",
+                    self.path.display(),
+                    m.index(),
+                    primitive.index(),
+                    indices.len()
+                ),
+            );
+        }
+        let mirrored = linear.determinant() < 0.0;
+        for tri in indices.chunks_exact(3) {
+            if let Some(&index) = tri.iter().find(|&&i| i as usize >= count) {
+                return Err(SceneError::IndexOutOfRange {
+                    path: self.path.to_path_buf(),
+                    triangle: self.mesh.triangles.len(),
+                    index,
+                    vertex_count: count,
+                });
+            }
+            let b = base as u32;
+            let t = if mirrored {
+                [b + tri[0], b + tri[2], b + tri[1]]
+            } else {
+                [b + tri[0], b + tri[1], b + tri[2]]
+            };
+            self.mesh.triangles.push(t);
+            self.mesh.triangle_material.push(material);
+        }
+        Ok(())
+    }
+
+    /// Our material index for a glTF material (created on first use), and the texture
+    /// coordinate set its base colour texture reads.
+    fn material(&mut self, material: &gltf::Material) -> (u32, u32) {
+        let Some(index) = material.index() else {
+            let id = match self.default_material {
+                Some(id) => id,
+                None => {
+                    warn(
+                        self.warnings,
+                        format!(
+                            "{}: primitives without a material; using grey {}",
+                            self.path.display(),
+                            DEFAULT_ALBEDO[0]
+                        ),
+                    );
+                    self.mesh
+                        .materials
+                        .push(Material::plain("(default grey)", DEFAULT_ALBEDO));
+                    let id = (self.mesh.materials.len() - 1) as u32;
+                    self.default_material = Some(id);
+                    id
+                }
+            };
+            return (id, 0);
+        };
+        let pbr = material.pbr_metallic_roughness();
+        let info = pbr.base_color_texture();
+        let tex_coord = info.as_ref().map_or(0, |i| i.tex_coord());
+        if let Some(&id) = self.material_index.get(&index) {
+            return (id, tex_coord);
+        }
+        let name = format!("material {index}");
+        let texture = info.and_then(|i| self.texture(i.texture().source().index(), &name));
+        let [r, g, b, _] = pbr.base_color_factor();
+        self.mesh.materials.push(Material {
+            name,
+            albedo: [r, g, b],
+            texture,
+        });
+        let id = (self.mesh.materials.len() - 1) as u32;
+        self.material_index.insert(index, id);
+        (id, tex_coord)
+    }
+
+    /// Loads glTF image `image` as a texture once; failures are warnings.
+    fn texture(&mut self, image: usize, material: &str) -> Option<u32> {
+        if let Some(&t) = self.image_texture.get(&image) {
+            return t;
+        }
+        let result = self
+            .document
+            .images()
+            .nth(image)
+            .ok_or_else(|| format!("image {image} does not exist"))
+            .and_then(|img| {
+                gltf::image::Data::from_source(img.source(), Some(self.base), self.buffers)
+                    .map_err(|e| e.to_string())
+            })
+            .and_then(|data| {
+                self.hasher.update(&data.pixels);
+                texture_from_gltf_image(&data)
+            });
+        let t = match result {
+            Ok(t) => {
+                self.mesh.textures.push(t);
+                Some((self.mesh.textures.len() - 1) as u32)
+            }
+            Err(message) => {
+                warn(
+                    self.warnings,
+                    format!(
+                        "{}: base colour texture (image {image}) of material '{material}': {message}; using the factor alone",
+                        self.path.display()
+                    ),
+                );
+                None
+            }
+        };
+        self.image_texture.insert(image, t);
+        t
+    }
+}
+
+/// Converts decoded glTF image data (sRGB-encoded base colour) to a linear texture.
+fn texture_from_gltf_image(data: &gltf::image::Data) -> Result<Texture, String> {
+    use gltf::image::Format as F;
+    let (w, h) = (data.width, data.height);
+    let bad = || format!("malformed {w}x{h} image data ({:?})", data.format);
+    let (channels, bytes_per_channel) = match data.format {
+        F::R8 => (1, 1),
+        F::R8G8 => (2, 1),
+        F::R8G8B8 => (3, 1),
+        F::R8G8B8A8 => (4, 1),
+        F::R16 => (1, 2),
+        F::R16G16 => (2, 2),
+        F::R16G16B16 => (3, 2),
+        F::R16G16B16A16 => (4, 2),
+        F::R32G32B32FLOAT => (3, 4),
+        F::R32G32B32A32FLOAT => (4, 4),
+    };
+    if bytes_per_channel == 1 {
+        return Texture::from_srgb8_channels(w, h, &data.pixels, channels).ok_or_else(bad);
+    }
+    let values: Vec<f32> = match bytes_per_channel {
+        2 => data
+            .pixels
+            .chunks_exact(2)
+            .map(|b| f32::from(u16::from_ne_bytes([b[0], b[1]])) / 65535.0)
+            .collect(),
+        _ => data
+            .pixels
+            .chunks_exact(4)
+            .map(|b| f32::from_ne_bytes([b[0], b[1], b[2], b[3]]).clamp(0.0, 1.0))
+            .collect(),
+    };
+    let texels = values
+        .chunks_exact(channels)
+        .map(|p| {
+            let rgb = if channels < 3 {
+                [p[0]; 3]
+            } else {
+                [p[0], p[1], p[2]]
+            };
+            rgb.map(srgb_to_linear)
+        })
+        .collect();
+    Texture::from_linear(w, h, texels).ok_or_else(bad)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Minimal standard base64 encoder for building data URIs in tests.
+    fn base64(data: &[u8]) -> String {
+        const A: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+        let mut out = String::new();
+        for chunk in data.chunks(3) {
+            let b = [
+                chunk[0],
+                chunk.get(1).copied().unwrap_or(0),
+                chunk.get(2).copied().unwrap_or(0),
+            ];
+            let n = (u32::from(b[0]) << 16) | (u32::from(b[1]) << 8) | u32::from(b[2]);
+            for k in 0..4 {
+                if k <= chunk.len() {
+                    out.push(A[((n >> (18 - 6 * k)) & 63) as usize] as char);
+                } else {
+                    out.push('=');
+                }
+            }
+        }
+        out
+    }
+
+    /// One triangle (positions + normals + u16 indices) under a translated, scaled parent
+    /// node with a child node that mirrors x, plus a POINTS primitive to be skipped.
+    fn write_test_gltf(dir: &Path) -> std::path::PathBuf {
+        let mut buf = Vec::new();
+        for p in [[0.0f32, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]] {
+            for c in p {
+                buf.extend_from_slice(&c.to_le_bytes());
+            }
+        }
+        for _ in 0..3 {
+            for c in [0.0f32, 0.0, 1.0] {
+                buf.extend_from_slice(&c.to_le_bytes());
+            }
+        }
+        for i in [0u16, 1, 2] {
+            buf.extend_from_slice(&i.to_le_bytes());
+        }
+        buf.extend_from_slice(&[0, 0]);
+        let uri = format!("data:application/octet-stream;base64,{}", base64(&buf));
+        let json = format!(
+            r#"{{
+  "asset": {{"version": "2.0"}},
+  "scene": 0,
+  "scenes": [{{"nodes": [0]}}],
+  "nodes": [
+    {{"translation": [10, 0, 0], "scale": [2, 2, 2], "mesh": 0, "children": [1]}},
+    {{"scale": [-1, 1, 1], "mesh": 0}}
+  ],
+  "materials": [{{"name": "red", "pbrMetallicRoughness": {{"baseColorFactor": [0.8, 0.1, 0.1, 1]}}}}],
+  "meshes": [{{"primitives": [
+    {{"attributes": {{"POSITION": 0, "NORMAL": 1}}, "indices": 2, "material": 0}},
+    {{"attributes": {{"POSITION": 0}}, "mode": 0}}
+  ]}}],
+  "buffers": [{{"byteLength": {len}, "uri": "{uri}"}}],
+  "bufferViews": [
+    {{"buffer": 0, "byteOffset": 0, "byteLength": 36}},
+    {{"buffer": 0, "byteOffset": 36, "byteLength": 36}},
+    {{"buffer": 0, "byteOffset": 72, "byteLength": 6}}
+  ],
+  "accessors": [
+    {{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0,0,0], "max": [1,1,0]}},
+    {{"bufferView": 1, "componentType": 5126, "count": 3, "type": "VEC3"}},
+    {{"bufferView": 2, "componentType": 5123, "count": 3, "type": "SCALAR"}}
+  ]
+}}"#,
+            len = buf.len()
+        );
+        let path = dir.join("tri.gltf");
+        std::fs::write(&path, json).expect("write gltf");
+        path
+    }
+
+    #[test]
+    fn node_transforms_are_applied() {
+        let dir = std::env::temp_dir().join(format!("mlt-gltf-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("temp dir");
+        let path = write_test_gltf(&dir);
+        let (mesh, warnings, _) = load_gltf(&path, 0.5).expect("loads");
+        assert_eq!(mesh.triangles.len(), 2);
+        let scaled = |v: Vec3| v * 0.5;
+        // Parent: translate (10,0,0) after scale 2.
+        assert_eq!(
+            mesh.corners(0),
+            [
+                scaled(Vec3::new(10.0, 0.0, 0.0)),
+                scaled(Vec3::new(12.0, 0.0, 0.0)),
+                scaled(Vec3::new(10.0, 2.0, 0.0)),
+            ]
+        );
+        // Child mirrors x inside the parent; winding swapped back.
+        assert_eq!(
+            mesh.corners(1),
+            [
+                scaled(Vec3::new(10.0, 0.0, 0.0)),
+                scaled(Vec3::new(10.0, 2.0, 0.0)),
+                scaled(Vec3::new(8.0, 0.0, 0.0)),
+            ]
+        );
+        // Normals are unit length after the scale; winding and normal still agree.
+        for t in 0..2 {
+            let [a, b, c] = mesh.corners(t);
+            let face = (b - a).cross(c - a).normalize();
+            let n = mesh.shading_normal(t, (0.3, 0.3)).expect("has normals");
+            assert!((n.length() - 1.0).abs() < 1e-5);
+            assert!(face.dot(n) > 0.99, "triangle {t}: face {face} normal {n}");
+        }
+        assert_eq!(mesh.albedo_at(0, (0.2, 0.2)), [0.8, 0.1, 0.1]);
+        assert!(warnings.iter().any(|w| w.contains("non-triangle")));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn broken_gltf_names_the_file() {
+        let dir = std::env::temp_dir().join(format!("mlt-gltf-bad-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("temp dir");
+        let path = dir.join("broken.gltf");
+        std::fs::write(&path, "{ not json").expect("write");
+        let e = load_gltf(&path, 1.0).unwrap_err().to_string();
+        assert!(e.contains("broken.gltf"), "{e}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn sixteen_bit_images_are_decoded() {
+        let data = gltf::image::Data {
+            pixels: [u16::MAX, 0, 0]
+                .iter()
+                .flat_map(|v| v.to_ne_bytes())
+                .collect(),
+            format: gltf::image::Format::R16G16B16,
+            width: 1,
+            height: 1,
+        };
+        let t = texture_from_gltf_image(&data).expect("converts");
+        assert_eq!(t.texels, vec![[1.0, 0.0, 0.0]]);
+    }
+}

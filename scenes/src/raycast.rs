@@ -1,0 +1,43 @@
+//! The narrow ray-casting interface (Lehtinen et al. 2008, section 5.1).
+
+use glam::Vec3;
+
+/// What a ray hit. Both normals face the side the ray came from (`dot(n, dir) <= 0`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hit {
+    /// Ray parameter of the hit (distance, as ray directions are unit length).
+    pub t: f32,
+    pub position: Vec3,
+    /// Geometric (face) normal, unit length, flipped to face the incoming ray.
+    pub geometric_normal: Vec3,
+    /// Interpolated shading normal, renormalised, on the same side as `geometric_normal`
+    /// (falls back to the geometric normal where the mesh has none or it is degenerate).
+    pub shading_normal: Vec3,
+    /// Linear RGB diffuse albedo at the hit (material colour times texture, if any).
+    pub albedo: [f32; 3],
+    /// Index of the primitive (triangle index in [`crate::Mesh::triangles`], 0 for the sphere).
+    pub prim_id: u32,
+}
+
+/// Ray casting against a scene. Implementations are immutable after construction and shared
+/// between threads.
+pub trait RayCaster: Sync + Send {
+    /// Closest hit along `origin + t * dir` for `t` in `(tmin, tmax)`; `dir` must be unit length.
+    fn intersect(&self, origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> Option<Hit>;
+
+    /// True when any surface lies strictly between `a` and `b` (end points excluded by a
+    /// scale-relative offset).
+    fn occluded(&self, a: Vec3, b: Vec3) -> bool;
+
+    /// Axis-aligned bounds of the geometry: (min, max).
+    fn bounds(&self) -> (Vec3, Vec3);
+
+    /// A distance, relative to the scene's size and coordinate magnitude, by which secondary
+    /// rays are offset from the surface they leave. Never an absolute constant in scene units.
+    fn ray_epsilon(&self) -> f32 {
+        let (lo, hi) = self.bounds();
+        let extent = (hi - lo).max_element().max(f32::MIN_POSITIVE);
+        let magnitude = lo.abs().max(hi.abs()).max_element();
+        1e-5 * extent + 4.0 * f32::EPSILON * magnitude
+    }
+}

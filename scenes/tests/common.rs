@@ -1,0 +1,51 @@
+//! Helpers shared by the integration tests.
+#![allow(dead_code)]
+
+use std::path::PathBuf;
+
+/// The shared scene folder: `$MLT_SHARED`, else `CARGO_MANIFEST_DIR/../../shared`.
+pub fn shared_dir() -> PathBuf {
+    match std::env::var_os("MLT_SHARED") {
+        Some(p) => PathBuf::from(p),
+        None => PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared"),
+    }
+}
+
+/// Path of a file under `shared/scenes/`, or `None` (with a note) when it is not there.
+pub fn shared_scene(rel: &str) -> Option<PathBuf> {
+    let p = shared_dir().join("scenes").join(rel);
+    if p.is_file() {
+        Some(p)
+    } else {
+        eprintln!("skipping: {} not found (set MLT_SHARED)", p.display());
+        None
+    }
+}
+
+/// A fresh temporary directory for one test.
+pub fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("mlt-scenes-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("create temp dir");
+    dir
+}
+
+/// Deterministic unit vectors (splitmix64 → uniform on the sphere).
+pub fn directions(n: usize, seed: u64) -> Vec<glam::Vec3> {
+    let mut state = seed;
+    let mut next = move || {
+        state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((z ^ (z >> 31)) >> 40) as f32 / (1u64 << 24) as f32
+    };
+    (0..n)
+        .map(|_| {
+            let z = 2.0 * next() - 1.0;
+            let phi = std::f32::consts::TAU * next();
+            let r = (1.0 - z * z).max(0.0).sqrt();
+            glam::Vec3::new(r * phi.cos(), r * phi.sin(), z)
+        })
+        .collect()
+}

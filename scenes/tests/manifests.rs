@@ -1,0 +1,191 @@
+//! Manifest parsing, scaling and validation against hand-written files.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use glam::Vec3;
+use mlt_scenes::{load_manifest, load_scene, LightKind, SceneError};
+
+const TRIANGLE_OBJ: &str = "v 0 0 0\nv 4 0 0\nv 0 0 4\nf 1 3 2\n";
+
+fn setup(name: &str, manifest: &str) -> (PathBuf, PathBuf) {
+    let dir = common::temp_dir(name);
+    std::fs::create_dir_all(dir.join("meshes")).expect("mkdir");
+    std::fs::write(dir.join("meshes/tri.obj"), TRIANGLE_OBJ).expect("write obj");
+    let path = dir.join("scene.toml");
+    std::fs::write(&path, manifest).expect("write manifest");
+    (dir, path)
+}
+
+fn err_of(name: &str, manifest: &str) -> SceneError {
+    let (dir, path) = setup(name, manifest);
+    let e = load_manifest(&path).expect_err(name);
+    let msg = e.to_string();
+    assert!(
+        msg.contains("scene.toml"),
+        "{name}: message does not name the file: {msg}"
+    );
+    let _ = std::fs::remove_dir_all(dir);
+    e
+}
+
+#[test]
+fn positions_are_scaled_intensity_is_not() {
+    let (dir, path) = setup(
+        "scaled",
+        r#"
+[scene]
+source = "meshes/tri.obj"
+scale = 0.5
+viewpoint = [1, 2, 1]
+
+[camera]
+position = [1, 2, 10]
+target = [1, 0, 1]
+
+[light]
+kind = "spot"
+position = [1, 3, 1]
+intensity = [2, 2, 2]
+direction = [0, -1, 0]
+cone_deg = 60
+falloff = "smooth"
+
+[bake]
+coarse_count = 50
+seed = 9
+"#,
+    );
+    let scene = load_scene(&path.to_string_lossy()).expect("loads");
+    assert_eq!(scene.viewpoint, Vec3::new(0.5, 1.0, 0.5));
+    assert_eq!(scene.camera.position, [0.5, 1.0, 5.0]);
+    assert_eq!(scene.camera.target, [0.5, 0.0, 0.5]);
+    assert_eq!(scene.light.position, [0.5, 1.5, 0.5]);
+    assert_eq!(scene.light.intensity, [2.0; 3]);
+    assert_eq!(scene.light.kind, LightKind::Spot);
+    assert_eq!(scene.bake.coarse_count, Some(50));
+    assert_eq!(scene.bake.seed, Some(9));
+    assert_eq!(scene.scale, 0.5);
+    let caster = scene.build_caster();
+    let (lo, hi) = caster.bounds();
+    assert_eq!((lo, hi), (Vec3::ZERO, Vec3::new(2.0, 0.0, 2.0)));
+    assert!(!scene
+        .warnings
+        .iter()
+        .any(|w| w.contains("viewpoint is a guess")));
+
+    // The hash covers the manifest: change a comment, the hash changes.
+    let text = std::fs::read_to_string(&path).expect("read");
+    std::fs::write(&path, format!("# edited\n{text}")).expect("write");
+    let again = load_manifest(&path).expect("loads");
+    assert_ne!(again.content_hash, scene.content_hash);
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[test]
+fn builtin_source_with_scale_and_defaults() {
+    let (dir, path) = setup(
+        "builtin",
+        "[scene]\nsource = \"builtin:sphere?radius=2\"\nscale = 3\n",
+    );
+    let scene = load_manifest(&path).expect("loads");
+    match scene.geometry {
+        mlt_scenes::Geometry::Sphere { radius, .. } => assert_eq!(radius, 6.0),
+        mlt_scenes::Geometry::Mesh(_) => panic!("sphere expected"),
+    }
+    assert_eq!(scene.light.intensity, [1.0; 3]);
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[test]
+fn bad_manifests_are_errors_naming_the_file() {
+    let base = "[scene]\nsource = \"meshes/tri.obj\"\n";
+    let e = err_of("typo", "[scene]\nsource = \"meshes/tri.obj\"\nscael = 2\n");
+    assert!(matches!(e, SceneError::Manifest { .. }), "{e}");
+    assert!(e.to_string().contains("scael"), "{e}");
+    let e = err_of("section", &format!("{base}[lights]\nkind = \"point\"\n"));
+    assert!(matches!(e, SceneError::Manifest { .. }), "{e}");
+    let e = err_of(
+        "camtypo",
+        &format!("{base}[camera]\nposition = [0,0,1]\ntarget = [0,0,0]\nfov = 3\n"),
+    );
+    assert!(e.to_string().contains("fov"), "{e}");
+    let e = err_of(
+        "nan",
+        "[scene]\nsource = \"meshes/tri.obj\"\nviewpoint = [0, nan, 0]\n",
+    );
+    assert!(matches!(e, SceneError::NonFinite { .. }), "{e}");
+    let e = err_of(
+        "inflight",
+        &format!("{base}[light]\nkind = \"point\"\nposition = [0, inf, 0]\nintensity = [1,1,1]\n"),
+    );
+    assert!(matches!(e, SceneError::NonFinite { .. }), "{e}");
+    let e = err_of(
+        "spotdir",
+        &format!("{base}[light]\nkind = \"spot\"\nposition = [0,1,0]\nintensity = [1,1,1]\ncone_deg = 30\n"),
+    );
+    assert!(matches!(e, SceneError::InvalidLight { .. }), "{e}");
+    let e = err_of(
+        "spotcone",
+        &format!("{base}[light]\nkind = \"spot\"\nposition = [0,1,0]\nintensity = [1,1,1]\ndirection = [0,-1,0]\ncone_deg = 180\n"),
+    );
+    assert!(matches!(e, SceneError::InvalidLight { .. }), "{e}");
+    let e = err_of(
+        "camera",
+        &format!("{base}[camera]\nposition = [0,0,0]\ntarget = [0,0,0]\n"),
+    );
+    assert!(matches!(e, SceneError::Manifest { .. }), "{e}");
+    let e = err_of(
+        "scale",
+        "[scene]\nsource = \"meshes/tri.obj\"\nscale = -1\n",
+    );
+    assert!(matches!(e, SceneError::Manifest { .. }), "{e}");
+    let e = err_of(
+        "kind",
+        &format!("{base}[light]\nkind = \"area\"\nposition = [0,1,0]\nintensity = [1,1,1]\n"),
+    );
+    assert!(matches!(e, SceneError::Manifest { .. }), "{e}");
+}
+
+#[test]
+fn missing_source_names_the_mesh_file() {
+    let (dir, path) = setup("missing", "[scene]\nsource = \"meshes/nothere.obj\"\n");
+    let e = load_manifest(&path).expect_err("missing mesh");
+    assert!(matches!(e, SceneError::Io { .. }), "{e}");
+    assert!(e.to_string().contains("nothere.obj"), "{e}");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[test]
+fn bare_mesh_gets_guessed_defaults() {
+    let (dir, path) = setup("bare", "[scene]\nsource = \"meshes/tri.obj\"\n");
+    let obj = path.with_file_name("meshes").join("tri.obj");
+    let scene = load_scene(&obj.to_string_lossy()).expect("loads");
+    assert_eq!(scene.viewpoint, Vec3::new(2.0, 0.0, 2.0));
+    assert!(scene
+        .warnings
+        .iter()
+        .any(|w| w.contains("viewpoint is a guess")));
+    let cam = Vec3::from(scene.camera.position);
+    assert!(cam.z > 2.0 && cam.x == 2.0, "{cam}");
+    // I = h², h the half-diagonal (sqrt(32) / 2 = 2.83).
+    assert!((scene.light.intensity[0] - 8.0).abs() < 1e-4);
+    // A manifest naming only the source keeps the guessed defaults.
+    let via_manifest = load_manifest(&path).expect("loads");
+    assert_eq!(via_manifest.viewpoint, scene.viewpoint);
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[test]
+fn unknown_extension_and_missing_files() {
+    let e = load_scene("scene.ply").expect_err("ply");
+    assert!(matches!(e, SceneError::UnknownFormat { .. }));
+    assert!(e.to_string().contains("scene.ply"));
+    let e = load_scene("/nonexistent/dir/x.toml").expect_err("missing");
+    assert!(e
+        .to_string()
+        .contains(&*Path::new("/nonexistent/dir/x.toml").to_string_lossy()));
+    let e = load_scene("builtin:nope").expect_err("builtin");
+    assert!(matches!(e, SceneError::Builtin { .. }));
+}

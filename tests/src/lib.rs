@@ -1,0 +1,61 @@
+//! Helpers for the end-to-end tests in `tests/tests/`.
+
+use std::path::PathBuf;
+
+use mlt_bake::{bake_scene, BakeOptions, BakeOutput, Silent};
+
+/// The `shared/` folder beside the repository (scenes, papers): `$MLT_SHARED` if set, else
+/// `../shared` relative to the workspace root.
+pub fn shared_dir() -> PathBuf {
+    if let Ok(p) = std::env::var("MLT_SHARED") {
+        return PathBuf::from(p);
+    }
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared")
+}
+
+/// The workspace root.
+pub fn repo_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// Bakes `spec` with `levels` levels and about `coarse` level-0 points on `threads` threads.
+pub fn bake_small(spec: &str, levels: u32, coarse: u32, threads: usize) -> BakeOutput {
+    bake_with(
+        spec,
+        BakeOptions {
+            receiver_levels: Some(levels),
+            coarse_count: Some(coarse),
+            ..Default::default()
+        },
+        threads,
+    )
+}
+
+/// Bakes `spec` with `opts` on `threads` threads; panics with the error's message on failure.
+pub fn bake_with(spec: &str, opts: BakeOptions, threads: usize) -> BakeOutput {
+    let scene = mlt_scenes::load_scene(spec).unwrap_or_else(|e| panic!("{e}"));
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("thread pool");
+    pool.install(|| bake_scene(&scene, &opts, &Silent))
+        .unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// A temporary directory removed on drop.
+pub struct TempDir(pub PathBuf);
+
+impl TempDir {
+    pub fn new(name: &str) -> TempDir {
+        let p = std::env::temp_dir().join(format!("mlt-test-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&p);
+        std::fs::create_dir_all(&p).expect("temp dir");
+        TempDir(p)
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
