@@ -430,7 +430,10 @@ fn cornell(p: &mut Params) -> Result<Built, SceneError> {
     let mesh = mesh_from_triangles(&tris, vec![white, red, green], mats);
     Ok(Built {
         geometry: Geometry::Mesh(mesh),
-        viewpoint: Vec3::new(0.278, 0.274, 0.28) * s,
+        // Not the room's centre (0.278, 0.274, 0.28): that is 1.2 cm from the tall block's
+        // corner. This is the README's viewpoint of the OBJ version, (0, 1, 0.5), mapped into
+        // these coordinates: mid-height, in front of the blocks, 11 cm above the short one.
+        viewpoint: Vec3::new(0.278, 0.274, 0.15) * s,
         camera: camera(
             Vec3::new(0.278, 0.273, -0.8) * s,
             Vec3::new(0.278, 0.273, 0.0) * s,
@@ -772,7 +775,14 @@ mod tests {
             .intersect(vp, -Vec3::X, 0.0, f32::INFINITY)
             .expect("green wall");
         assert_eq!(right.albedo, [0.14, 0.45, 0.091]);
-        // The front is open.
+        // The viewpoint is clear of every surface by more than 10 cm (the short block's top
+        // is nearest); the front is open.
+        for d in [Vec3::X, -Vec3::X, Vec3::Y, -Vec3::Y, Vec3::Z] {
+            let h = caster
+                .intersect(s.viewpoint, d, 0.0, f32::INFINITY)
+                .expect("closed behind");
+            assert!(h.t > 0.1, "{d}: {}", h.t);
+        }
         assert!(caster
             .intersect(s.viewpoint, -Vec3::Z, 0.0, f32::INFINITY)
             .is_none());

@@ -264,7 +264,7 @@ impl Loader<'_> {
             Some(it) => it.into_u32().collect(),
             None => (0..count as u32).collect(),
         };
-        if indices.len() % 3 != 0 {
+        if !indices.chunks_exact(3).remainder().is_empty() {
             warn(
                 self.warnings,
                 format!(

@@ -78,6 +78,9 @@ impl MeshCaster {
 
     fn ray(origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> Option<Ray> {
         let ok = origin.is_finite() && dir.is_finite() && dir != Vec3::ZERO && tmin < tmax;
+        // obvhs picks the slab order by `dir < 0` but inverts with the sign of the zero, so
+        // a -0.0 component (e.g. from `-Vec3::Y`) makes every node test miss. Use +0.0.
+        let dir = Vec3::from_array(dir.to_array().map(|c| if c == 0.0 { 0.0 } else { c }));
         ok.then(|| Ray::new(Vec3A::from(origin), Vec3A::from(dir), tmin, tmax))
     }
 }

@@ -49,6 +49,8 @@ pub fn load_obj(path: &Path, scale: f32) -> Result<(Mesh, Vec<String>, u64), Sce
     let dir = path.parent().unwrap_or(Path::new("")).to_path_buf();
     let mut warnings = Vec::new();
 
+    // The struct update covers fields that only exist with some tobj features.
+    #[allow(clippy::needless_update)]
     let options = tobj::LoadOptions {
         triangulate: true,
         single_index: true,
@@ -513,17 +515,18 @@ mod tests {
         let obj = write(
             &dir,
             "q.obj",
-            "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n\
+            "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0.25\nvt 1 0.25\nvt 1 0.75\nvt 0 0.75\n\
              usemtl a\nf 1/1 2/2 3/3 4/4\nusemtl glow\nf 1/1 3/3 4/4\n",
         );
         let (mesh, warnings, hash) = load_obj(&obj, 2.0).expect("loads");
         assert_eq!(mesh.triangles.len(), 3);
         assert_eq!(mesh.positions.iter().map(|p| p.x).fold(0.0, f32::max), 2.0);
         assert_eq!(mesh.textures.len(), 1, "case-insensitive texture lookup");
-        // OBJ v = 0 (bottom) is the last image row (green); v = 1 the first (red).
-        let bottom = mesh.albedo_at(0, (0.0, 0.0)); // corner 1: vt 0 0
+        // OBJ v = 0 (bottom) is the last image row (green); v = 1 the first (red). Texel
+        // centres of the 1x2 image are at v = 0.25 and 0.75.
+        let bottom = mesh.albedo_at(0, (0.0, 0.0)); // corner 1: vt 0 0.25
         assert!(bottom[1] > 0.9 && bottom[0] < 0.1, "{bottom:?}");
-        let top = mesh.albedo_at(0, (0.0, 1.0)); // corner 3: vt 1 1
+        let top = mesh.albedo_at(0, (0.0, 1.0)); // corner 3: vt 1 0.75
         assert!((top[0] - 0.5).abs() < 1e-5 && top[1] < 0.1, "{top:?}");
         assert!(warnings
             .iter()

@@ -2,7 +2,9 @@
 
 use glam::Vec3;
 
-/// What a ray hit. Both normals face the side the ray came from (`dot(n, dir) <= 0`).
+/// What a ray hit. The geometric normal faces the side the ray came from
+/// (`dot(geometric_normal, dir) <= 0`); the shading normal is turned to the same side of the
+/// surface as the geometric one (for grazing rays it may lean slightly past the ray).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Hit {
     /// Ray parameter of the hit (distance, as ray directions are unit length).

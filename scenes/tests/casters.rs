@@ -12,8 +12,10 @@ fn sphere_mesh_agrees_with_the_analytic_sphere() {
     let centre = Vec3::ZERO;
     let mesh = MeshCaster::new(icosphere(radius, 4, [0.5; 3]));
     let sphere = SphereCaster::new(centre, radius, [0.5; 3]);
-    // Chord sag of a level-4 icosphere is below 1e-3 of the radius.
-    let tol = 1e-3 * radius;
+    // The chord sag of a level-4 icosphere is below 1.5e-3 of the radius (1.1e-3 measured);
+    // along oblique rays the distance error is the sag over the cosine of incidence.
+    let sag = 1.5e-3 * radius;
+    let tol = 3.0 * sag;
     for d in common::directions(2000, 11) {
         // From inside (the centre and off-centre).
         for origin in [centre, Vec3::new(0.3, -0.5, 0.2)] {
@@ -25,6 +27,8 @@ fn sphere_mesh_agrees_with_the_analytic_sphere() {
                 .expect("mesh hit");
             assert!((a.t - m.t).abs() < tol, "t {} vs {}", a.t, m.t);
             assert!(m.t <= a.t + 1e-5, "the inscribed mesh is hit first");
+            let r = (m.position - centre).length();
+            assert!(r > radius - sag && r < radius + 1e-5, "hit at radius {r}");
             assert!(m.geometric_normal.dot(d) <= 0.0);
             assert!(m.shading_normal.dot(a.shading_normal) > 0.9999);
         }

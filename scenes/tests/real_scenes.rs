@@ -161,7 +161,7 @@ fn builtin_cornell_manifest() {
     let vp = scene.viewpoint;
     for d in [Vec3::X, -Vec3::X, Vec3::Y, -Vec3::Y, Vec3::Z] {
         let h = caster.intersect(vp, d, 0.0, f32::INFINITY).expect("hits");
-        assert!(h.t > 0.1);
+        assert!(h.t > 0.1, "{d}: {}", h.t);
     }
     assert!(!caster.occluded(Vec3::from(scene.light.position), vp));
 }
@@ -223,13 +223,13 @@ fn sponza_manifest() {
 
 #[test]
 fn sibenik_and_conference_manifests() {
-    if let Some(_) = common::shared_scene("sibenik/sibenik.obj") {
+    if common::shared_scene("sibenik/sibenik.obj").is_some() {
         let scene = load_scene(&manifest("sibenik.toml").to_string_lossy()).expect("loads");
         let caster = scene.build_caster();
         assert_viewpoint_inside(caster.as_ref(), scene.viewpoint, 3.0);
         assert!(!caster.occluded(Vec3::from(scene.light.position), scene.viewpoint));
     }
-    if let Some(_) = common::shared_scene("conference/conference.obj") {
+    if common::shared_scene("conference/conference.obj").is_some() {
         let scene = load_scene(&manifest("conference.toml").to_string_lossy()).expect("loads");
         assert!((scene.scale - 0.003).abs() < 1e-9);
         assert!((scene.viewpoint - Vec3::new(3.6, 1.2, -0.45)).length() < 1e-4);
