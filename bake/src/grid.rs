@@ -58,17 +58,23 @@ impl Grid {
     }
 
     /// Calls `f(id)` for the points in the 27 cells around `p` until `f` returns true;
-    /// returns whether it did.
+    /// returns whether it did. The point's own cell comes first: it is the likeliest to hold
+    /// a conflicting point, and most darts are rejected.
     pub fn any_near(&self, p: Vec3, mut f: impl FnMut(u32) -> bool) -> bool {
         let c = self.cell_of(p);
+        let mut visit = |d: [i32; 3]| {
+            self.cells
+                .get(&key([c[0] + d[0], c[1] + d[1], c[2] + d[2]]))
+                .is_some_and(|ids| ids.iter().any(|&id| f(id)))
+        };
+        if visit([0, 0, 0]) {
+            return true;
+        }
         for dz in -1..=1 {
             for dy in -1..=1 {
                 for dx in -1..=1 {
-                    let k = key([c[0] + dx, c[1] + dy, c[2] + dz]);
-                    if let Some(ids) = self.cells.get(&k) {
-                        if ids.iter().any(|&id| f(id)) {
-                            return true;
-                        }
+                    if (dx, dy, dz) != (0, 0, 0) && visit([dx, dy, dz]) {
+                        return true;
                     }
                 }
             }

@@ -12,7 +12,7 @@ use crate::candidates::CandidatePool;
 use crate::error::BakeError;
 use crate::observer::Observer;
 use crate::params::{resolve, BakeOptions};
-use crate::placement::{find_coarse_radius, place, Coarse};
+use crate::placement::{find_coarse_radius, place, Coarse, LevelPlan};
 use crate::poisson::DartSettings;
 
 /// The tool name and version recorded in files.
@@ -109,10 +109,12 @@ pub fn bake_scene(
     let placement = place(
         &mut pool,
         caster.as_ref(),
-        levels,
-        r_coarse,
-        params.c_coarse,
-        params.c_fine,
+        LevelPlan {
+            levels,
+            r_coarse,
+            c_coarse: params.c_coarse,
+            c_fine: params.c_fine,
+        },
         &settings,
         |l, _| obs.progress(l as u64 + 1, levels as u64),
     );

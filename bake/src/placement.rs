@@ -66,17 +66,30 @@ pub struct Placement {
     pub dry_levels: Vec<usize>,
 }
 
-/// Places `levels` levels from `r_coarse`, calling `on_level(l, points)` after each.
+/// The shape of the hierarchy: level count, `R_coarse`, and the support factors `C` on the
+/// coarsest and finest level.
+#[derive(Clone, Copy, Debug)]
+pub struct LevelPlan {
+    pub levels: usize,
+    pub r_coarse: f32,
+    pub c_coarse: f32,
+    pub c_fine: f32,
+}
+
+/// Places the levels of `plan`, calling `on_level(l, points)` after each.
 pub fn place(
     pool: &mut CandidatePool<'_>,
     caster: &dyn RayCaster,
-    levels: usize,
-    r_coarse: f32,
-    c_coarse: f32,
-    c_fine: f32,
+    plan: LevelPlan,
     settings: &DartSettings,
     mut on_level: impl FnMut(usize, usize),
 ) -> Placement {
+    let LevelPlan {
+        levels,
+        r_coarse,
+        c_coarse,
+        c_fine,
+    } = plan;
     let mut basis = Basis {
         level_offsets: vec![0],
         ..Basis::default()

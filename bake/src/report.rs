@@ -89,7 +89,7 @@ pub fn bake_table(meta: &Meta, timings: &Timings, file_bytes: u64) -> String {
     if timings.total_s > 0.0 {
         let _ = writeln!(
             o,
-            "rays/s        {:.0}",
+            "rays/s        {:.0} (placement: candidates and harmonic-mean-distance rays over their time)",
             s.rays as f64 / (timings.candidates_s + timings.poisson_s).max(1e-9)
         );
     }

@@ -180,7 +180,7 @@ pub fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header, FormatError> {
         )));
     }
     if header_len < FIXED_HEADER
-        || header_len % ALIGN != 0
+        || !header_len.is_multiple_of(ALIGN)
         || header_len > bytes.len()
         || count > (header_len - FIXED_HEADER) / ENTRY_SIZE
     {
@@ -225,7 +225,7 @@ pub fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header, FormatError> {
         };
         let end = e.offset.checked_add(e.stored_len);
         if e.offset < header_len as u64
-            || e.offset % ALIGN as u64 != 0
+            || !e.offset.is_multiple_of(ALIGN as u64)
             || end.is_none_or(|end| end > file_len)
             || (!e.compressed && e.raw_len != e.stored_len)
             || (e.compressed && e.raw_len > e.stored_len.saturating_mul(MAX_EXPANSION))

@@ -96,7 +96,7 @@ fn a_file_with_consistent_checksums_but_forged_contents_is_rejected() {
     c.basis.trees[0].node_count[0] = 0;
     let forged = mlt_format::file::encode(&c, WriteOptions::default()).unwrap();
     let f = BakedFile::from_bytes(std::path::Path::new("tree.mlt"), &forged).unwrap();
-    let e = f.basis().err().expect("forged tree accepted");
+    let e = f.basis().expect_err("forged tree accepted");
     assert!(e.to_string().contains("R-tree"), "{e}");
 }
 

@@ -1,0 +1,66 @@
+//! Bakes of the real third-party scenes in ../shared/scenes through their manifests (few
+//! levels, so that the test stays quick; the full-size runs are benchmarks).
+
+use mlt_format::kernel::poisson_distance;
+use mlt_tests::{bake_small, repo_dir, shared_dir};
+
+fn manifest(name: &str) -> String {
+    assert!(
+        shared_dir().join("scenes").is_dir(),
+        "{} is missing: the scene tests need ../shared/scenes (or MLT_SHARED)",
+        shared_dir().display()
+    );
+    repo_dir().join("scenes").join(name).display().to_string()
+}
+
+fn check_basis(name: &str, levels: u32, coarse: u32) {
+    let out = bake_small(&manifest(name), levels, coarse, 2);
+    let b = &out.contents.basis.basis;
+    b.validate().unwrap();
+    assert_eq!(b.levels(), levels as usize);
+    let meta = &out.contents.meta;
+    assert!(meta.scene.triangles > 0);
+    assert_ne!(meta.scene.content_hash, 0);
+    for l in 0..b.levels() {
+        let range = b.level_range(l);
+        assert!(!range.is_empty(), "{name}: level {l} is empty");
+        // Every point lies inside the scene's bounds.
+        for j in range.clone() {
+            for a in 0..3 {
+                let (lo, hi) = (meta.scene.bounds_min[a], meta.scene.bounds_max[a]);
+                let slack = 1e-4 * (hi - lo);
+                assert!(b.positions[j][a] >= lo - slack && b.positions[j][a] <= hi + slack);
+            }
+        }
+    }
+    // The Poisson-disk property on the coarsest level (all pairs; few points).
+    let r = b.disk_radii[0];
+    let l0 = b.level_range(0);
+    for i in l0.clone() {
+        for j in l0.clone().filter(|&j| j > i) {
+            assert!(
+                poisson_distance(b.positions[i], b.normals[i], b.positions[j], b.normals[j]) >= r
+            );
+        }
+    }
+    let counts: Vec<u64> = meta.stats.levels.iter().map(|l| l.points).collect();
+    eprintln!(
+        "{name}: points per level {counts:?}, R_coarse {}",
+        meta.params.coarse_radius
+    );
+}
+
+#[test]
+fn cornell_obj_bakes() {
+    check_basis("cornell_obj.toml", 3, 40);
+}
+
+#[test]
+fn sponza_bakes() {
+    check_basis("sponza.toml", 2, 60);
+}
+
+#[test]
+fn conference_with_degenerate_triangles_bakes() {
+    check_basis("conference.toml", 2, 40);
+}
