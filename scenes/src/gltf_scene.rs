@@ -456,6 +456,41 @@ mod tests {
     /// One triangle (positions + normals + u16 indices) under a translated, scaled parent
     /// node with a child node that mirrors x, plus a POINTS primitive to be skipped.
     fn write_test_gltf(dir: &Path) -> std::path::PathBuf {
+        let buf = test_buffer();
+        let uri = format!("data:application/octet-stream;base64,{}", base64(&buf));
+        let json = test_json(&format!(r#""byteLength": {}, "uri": "{uri}""#, buf.len()));
+        let path = dir.join("tri.gltf");
+        std::fs::write(&path, json).expect("write gltf");
+        path
+    }
+
+    /// The same asset as a binary .glb: a JSON chunk and a BIN chunk holding the buffer.
+    fn write_test_glb(dir: &Path) -> std::path::PathBuf {
+        let mut bin = test_buffer();
+        let mut json = test_json(&format!(r#""byteLength": {}"#, bin.len())).into_bytes();
+        while json.len() % 4 != 0 {
+            json.push(b' ');
+        }
+        while bin.len() % 4 != 0 {
+            bin.push(0);
+        }
+        let total = 12 + 8 + json.len() + 8 + bin.len();
+        let mut glb = Vec::with_capacity(total);
+        glb.extend_from_slice(b"glTF");
+        glb.extend_from_slice(&2u32.to_le_bytes());
+        glb.extend_from_slice(&(total as u32).to_le_bytes());
+        glb.extend_from_slice(&(json.len() as u32).to_le_bytes());
+        glb.extend_from_slice(&0x4E4F_534Au32.to_le_bytes());
+        glb.extend_from_slice(&json);
+        glb.extend_from_slice(&(bin.len() as u32).to_le_bytes());
+        glb.extend_from_slice(&0x004E_4942u32.to_le_bytes());
+        glb.extend_from_slice(&bin);
+        let path = dir.join("tri.glb");
+        std::fs::write(&path, glb).expect("write glb");
+        path
+    }
+
+    fn test_buffer() -> Vec<u8> {
         let mut buf = Vec::new();
         for p in [[0.0f32, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]] {
             for c in p {
@@ -471,8 +506,12 @@ mod tests {
             buf.extend_from_slice(&i.to_le_bytes());
         }
         buf.extend_from_slice(&[0, 0]);
-        let uri = format!("data:application/octet-stream;base64,{}", base64(&buf));
-        let json = format!(
+        buf
+    }
+
+    /// The asset's JSON with `buffer` as the fields of its one buffer.
+    fn test_json(buffer: &str) -> String {
+        format!(
             r#"{{
   "asset": {{"version": "2.0"}},
   "scene": 0,
@@ -486,7 +525,7 @@ mod tests {
     {{"attributes": {{"POSITION": 0, "NORMAL": 1}}, "indices": 2, "material": 0}},
     {{"attributes": {{"POSITION": 0}}, "mode": 0}}
   ]}}],
-  "buffers": [{{"byteLength": {len}, "uri": "{uri}"}}],
+  "buffers": [{{{buffer}}}],
   "bufferViews": [
     {{"buffer": 0, "byteOffset": 0, "byteLength": 36}},
     {{"buffer": 0, "byteOffset": 36, "byteLength": 36}},
@@ -497,12 +536,8 @@ mod tests {
     {{"bufferView": 1, "componentType": 5126, "count": 3, "type": "VEC3"}},
     {{"bufferView": 2, "componentType": 5123, "count": 3, "type": "SCALAR"}}
   ]
-}}"#,
-            len = buf.len()
-        );
-        let path = dir.join("tri.gltf");
-        std::fs::write(&path, json).expect("write gltf");
-        path
+}}"#
+        )
     }
 
     #[test]
@@ -541,6 +576,18 @@ mod tests {
         }
         assert_eq!(mesh.albedo_at(0, (0.2, 0.2)), [0.8, 0.1, 0.1]);
         assert!(warnings.iter().any(|w| w.contains("non-triangle")));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn glb_loads_like_gltf() {
+        let dir = std::env::temp_dir().join(format!("mlt-glb-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("temp dir");
+        let (a, _, _) = load_gltf(&write_test_gltf(&dir), 1.0).expect("gltf loads");
+        let (b, _, _) = load_gltf(&write_test_glb(&dir), 1.0).expect("glb loads");
+        assert_eq!(a.triangles.len(), 2);
+        assert_eq!(a.positions, b.positions);
+        assert_eq!(a.triangles, b.triangles);
         let _ = std::fs::remove_dir_all(&dir);
     }
 
