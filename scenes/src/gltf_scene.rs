@@ -96,18 +96,7 @@ pub fn load_gltf(path: &Path, scale: f32) -> Result<(Mesh, Vec<String>, u64), Sc
         );
     }
 
-    let absent = mesh.sanitize_normals();
-    if absent > 0 {
-        warn(
-            &mut warnings,
-            format!(
-                "{}: {absent} vertex normals are zero or non-finite; those vertices use the face normal",
-                path.display()
-            ),
-        );
-    }
-    mesh.drop_degenerate_triangles(path);
-    mesh.validate(path)?;
+    mesh.finish(path, &mut warnings)?;
     Ok((mesh, warnings, hasher.digest()))
 }
 
@@ -468,10 +457,10 @@ mod tests {
     fn write_test_glb(dir: &Path) -> std::path::PathBuf {
         let mut bin = test_buffer();
         let mut json = test_json(&format!(r#""byteLength": {}"#, bin.len())).into_bytes();
-        while json.len() % 4 != 0 {
+        while !json.len().is_multiple_of(4) {
             json.push(b' ');
         }
-        while bin.len() % 4 != 0 {
+        while !bin.len().is_multiple_of(4) {
             bin.push(0);
         }
         let total = 12 + 8 + json.len() + 8 + bin.len();

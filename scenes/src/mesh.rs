@@ -225,6 +225,23 @@ impl Mesh {
         (s != Vec3::ZERO && s.is_finite()).then_some(s)
     }
 
+    /// The last step of every loader: sanitises normals (with a warning naming `path` when
+    /// some were unusable), drops zero-area triangles and validates the result.
+    pub fn finish(&mut self, path: &Path, warnings: &mut Vec<String>) -> Result<(), SceneError> {
+        let absent = self.sanitize_normals();
+        if absent > 0 {
+            crate::obj::warn(
+                warnings,
+                format!(
+                    "{}: {absent} vertex normals are zero or non-finite; those vertices use the face normal",
+                    path.display()
+                ),
+            );
+        }
+        self.drop_degenerate_triangles(path);
+        self.validate(path)
+    }
+
     /// Renormalises the vertex normals; zero-length or non-finite ones become
     /// [`Vec3::ZERO`] ("absent"). Returns how many were absent.
     pub fn sanitize_normals(&mut self) -> usize {

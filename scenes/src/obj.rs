@@ -133,18 +133,7 @@ pub fn load_obj(path: &Path, scale: f32) -> Result<(Mesh, Vec<String>, u64), Sce
     );
     append_models(path, &bytes, &models, scale, &mut mesh, &mut warnings)?;
 
-    let absent = mesh.sanitize_normals();
-    if absent > 0 {
-        warn(
-            &mut warnings,
-            format!(
-                "{}: {absent} vertex normals are zero or non-finite; those vertices use the face normal",
-                path.display()
-            ),
-        );
-    }
-    mesh.drop_degenerate_triangles(path);
-    mesh.validate(path)?;
+    mesh.finish(path, &mut warnings)?;
     Ok((mesh, warnings, hasher.digest()))
 }
 
