@@ -17,6 +17,7 @@ pub mod error;
 pub mod file;
 pub mod flatten;
 pub mod kernel;
+pub mod links;
 pub mod meta;
 pub mod pull_push;
 pub mod rtree;
