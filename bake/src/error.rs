@@ -13,6 +13,8 @@ pub enum BakeError {
     InvalidParameter(String),
     #[error("{scene}: no importance particle from the viewpoint {viewpoint:?} reached a surface; is the viewpoint inside the scene?")]
     NoCandidates { scene: String, viewpoint: [f32; 3] },
+    #[error("the light transport does not converge: the estimated spectral radius of the bounce operator is {spectral_radius:.5}, at or too close to 1 for S = T + T^2 + ... to converge; is an albedo 1 or more?")]
+    Divergent { spectral_radius: f64 },
     #[error("{scene}: the viewpoint {viewpoint:?} is not finite")]
     BadViewpoint { scene: String, viewpoint: [f32; 3] },
 }

@@ -8,15 +8,20 @@
 
 pub mod candidates;
 pub mod error;
+pub mod gather;
 pub mod grid;
+pub mod neumann;
 pub mod observer;
 pub mod params;
 pub mod pipeline;
 pub mod placement;
 pub mod poisson;
+pub mod refine;
 pub mod report;
 pub mod rng;
 pub mod sampling;
+pub mod table1;
+pub mod transport;
 
 pub use error::BakeError;
 pub use observer::{Observer, Silent};

@@ -8,7 +8,8 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
-use mlt_bake::report::{bake_table, info_text};
+use mlt_bake::report::{bake_table, info_text, transport_table};
+use mlt_bake::table1::{compare_json, compare_text, our_row, paper_row, Table1Row};
 use mlt_bake::{bake_scene, BakeOptions, Observer};
 use mlt_format::{BakedFile, WriteOptions};
 
@@ -24,6 +25,19 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Prints the paper's Table-1 columns for baked files (or --stats-json outputs), side by
+    /// side; with --against, next to the paper's row or another bake, with ratios.
+    Stats {
+        /// .mlt files or JSON statistics written by --stats-json.
+        #[arg(required = true)]
+        files: Vec<PathBuf>,
+        /// paper:sponza, paper:greathall, paper:jadepalace, or another .mlt / stats .json.
+        #[arg(long)]
+        against: Option<String>,
+        /// Machine-readable JSON instead of text.
+        #[arg(long)]
+        json: bool,
+    },
     /// Prints what a baked file holds: version, scene, parameters, levels, sections.
     Info {
         file: PathBuf,
@@ -65,6 +79,25 @@ struct BakeArgs {
     /// zstd-compress the file's sections (smaller; readers decompress instead of mapping).
     #[arg(long)]
     compress: bool,
+    /// Link threshold epsilon (paper: 0.025).
+    #[arg(long)]
+    epsilon: Option<f32>,
+    /// Sender levels, the coarsest of the receiver levels (paper: 3).
+    #[arg(long)]
+    sender_levels: Option<u32>,
+    /// Most bounces of the Neumann series S = T + T^2 + ... (paper: 4).
+    #[arg(long)]
+    bounces: Option<u32>,
+    /// Rays per receiver gather (Eq. 16).
+    #[arg(long)]
+    gather_rays: Option<u32>,
+    /// Compute bounces 2 and later on every refined receiver, not only the coarsest (the
+    /// paper's choice; more accurate on curved geometry, slower).
+    #[arg(long)]
+    bounces_on_all_receivers: bool,
+    /// Place the basis only; compute no transport operator.
+    #[arg(long)]
+    basis_only: bool,
     /// Dart thrower's consecutive-miss limit (paper: 2000).
     #[arg(long)]
     max_misses: Option<u32>,
@@ -173,6 +206,12 @@ fn run_bake(args: BakeArgs) -> Result<()> {
         coarse_radius: args.coarse_radius,
         seed: args.seed,
         max_misses: args.max_misses,
+        epsilon: args.epsilon,
+        sender_levels: args.sender_levels,
+        bounces: args.bounces,
+        gather_rays: args.gather_rays,
+        bounces_on_all_receivers: args.bounces_on_all_receivers,
+        basis_only: args.basis_only,
         record_timings: args.record_timings,
         compress: args.compress,
     };
@@ -212,6 +251,12 @@ fn run_bake(args: BakeArgs) -> Result<()> {
 
     if !args.quiet {
         eprint!("{}", bake_table(&out.contents.meta, &out.timings, size));
+        if let Some(t) = &out.contents.transport {
+            eprint!(
+                "{}",
+                transport_table(&t.meta, out.transport_timings.as_ref())
+            );
+        }
     }
     if let Some(path) = &args.stats_json {
         let json = serde_json::json!({
@@ -219,6 +264,11 @@ fn run_bake(args: BakeArgs) -> Result<()> {
             "file_bytes": size,
             "meta": &out.contents.meta,
             "timings": &out.timings,
+            "transport": out.contents.transport.as_ref().map(|t| {
+                let mut m = t.meta.clone();
+                m.timings = out.transport_timings.clone();
+                m
+            }),
             "warnings": &out.warnings,
         });
         let text = serde_json::to_string_pretty(&json).context("formatting statistics")?;
@@ -242,10 +292,77 @@ fn run_info(file: &Path, json: bool) -> Result<()> {
     Ok(())
 }
 
+/// A Table-1 row from a baked file or a `--stats-json` output.
+fn load_row(path: &Path) -> Result<Table1Row> {
+    if path.extension().is_some_and(|e| e == "json") {
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let v: serde_json::Value =
+            serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
+        let meta: mlt_format::Meta = serde_json::from_value(v["meta"].clone())
+            .with_context(|| format!("{}: no bake statistics in it", path.display()))?;
+        let transport: Option<mlt_format::meta::TransportMeta> =
+            serde_json::from_value(v["transport"].clone()).unwrap_or(None);
+        let timings: Option<mlt_format::meta::Timings> =
+            serde_json::from_value(v["timings"].clone()).ok();
+        let mut row = our_row(
+            &meta,
+            transport.as_ref(),
+            v["file_bytes"].as_u64(),
+            timings.as_ref(),
+            None,
+        );
+        row.title = path.display().to_string();
+        return Ok(row);
+    }
+    let f = BakedFile::open(path).with_context(|| format!("opening {}", path.display()))?;
+    let meta = f
+        .meta()
+        .with_context(|| format!("reading {}", path.display()))?;
+    let transport = f
+        .transport_meta()
+        .with_context(|| format!("reading {}", path.display()))?;
+    let mut row = our_row(&meta, transport.as_ref(), Some(f.file_len()), None, None);
+    row.title = path.display().to_string();
+    Ok(row)
+}
+
+fn run_stats(files: &[PathBuf], against: Option<&str>, json: bool) -> Result<()> {
+    let mut rows = files
+        .iter()
+        .map(|f| load_row(f))
+        .collect::<Result<Vec<_>>>()?;
+    if let Some(a) = against {
+        let other = match a.strip_prefix("paper:") {
+            Some(name) => {
+                let mut r = paper_row(name).with_context(|| {
+                    format!("no paper row '{name}' (known: sponza, greathall, jadepalace)")
+                })?;
+                r.title = format!("paper: {}", r.title);
+                r
+            }
+            None => load_row(Path::new(a))?,
+        };
+        rows.push(other);
+    }
+    let refs: Vec<&Table1Row> = rows.iter().collect();
+    if json {
+        println!("{}", serde_json::to_string_pretty(&compare_json(&refs))?);
+    } else {
+        print!("{}", compare_text(&refs));
+    }
+    Ok(())
+}
+
 fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Some(Command::Info { file, json }) => run_info(&file, json),
+        Some(Command::Stats {
+            files,
+            against,
+            json,
+        }) => run_stats(&files, against.as_deref(), json),
         None => run_bake(cli.bake),
     }
 }

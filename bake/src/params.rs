@@ -1,7 +1,7 @@
 //! Bake parameters: the paper's defaults, overridden by a manifest's `[bake]` table, overridden
 //! by the command line.
 
-use mlt_format::meta::BasisParams;
+use mlt_format::meta::{BasisParams, TransportParams};
 use mlt_scenes::BakeSettings;
 
 use crate::error::BakeError;
@@ -18,6 +18,11 @@ pub const HMD_RANGE: f32 = 3.0;
 pub const HMD_REJECT: f32 = 1.0 / 6.0;
 pub const PARTICLE_BOUNCES: u32 = 30;
 pub const SKIPPED_BOUNCES: u32 = 3;
+pub const DEFAULT_EPSILON: f32 = 0.025;
+pub const DEFAULT_SENDER_LEVELS: u32 = 3;
+pub const DEFAULT_BOUNCES: u32 = 4;
+/// Rays per receiver gather (the paper does not say; the tech report's radiosity used 512).
+pub const DEFAULT_GATHER_RAYS: u32 = 256;
 /// More levels than this would need more than 2^(2*16) points per coarse point.
 pub const MAX_LEVELS: u32 = 16;
 
@@ -30,6 +35,18 @@ pub struct BakeOptions {
     pub seed: Option<u64>,
     /// Override the dart thrower's consecutive-miss limit (paper: 2000).
     pub max_misses: Option<u32>,
+    /// Link threshold epsilon (paper: 0.025).
+    pub epsilon: Option<f32>,
+    /// Sender levels (paper: 3; at most the receiver levels).
+    pub sender_levels: Option<u32>,
+    /// Most bounces of the Neumann series (paper: 4).
+    pub bounces: Option<u32>,
+    /// Rays per receiver gather.
+    pub gather_rays: Option<u32>,
+    /// Bounces 2 and later on every refined receiver, not only the coarsest.
+    pub bounces_on_all_receivers: bool,
+    /// Place the basis only; compute no transport operator.
+    pub basis_only: bool,
     /// Store wall-clock timings in the file (makes it differ from run to run).
     pub record_timings: bool,
     /// zstd-compress the file's sections.
@@ -102,6 +119,29 @@ pub fn resolve(
         },
         coarse,
     ))
+}
+
+/// Resolves the transport parameters (command line, else manifest, else the paper's).
+pub fn resolve_transport(
+    opts: &BakeOptions,
+    scene: &BakeSettings,
+    basis: &BasisParams,
+) -> TransportParams {
+    TransportParams {
+        epsilon: opts.epsilon.or(scene.epsilon).unwrap_or(DEFAULT_EPSILON),
+        sender_levels: opts
+            .sender_levels
+            .or(scene.sender_levels)
+            .unwrap_or(DEFAULT_SENDER_LEVELS.min(basis.levels)),
+        receiver_levels: basis.levels,
+        bounces: opts.bounces.or(scene.bounces).unwrap_or(DEFAULT_BOUNCES),
+        gather_rays: opts
+            .gather_rays
+            .or(scene.gather_rays)
+            .unwrap_or(DEFAULT_GATHER_RAYS),
+        bounces_on_all_receivers: opts.bounces_on_all_receivers,
+        seed: basis.seed,
+    }
 }
 
 #[cfg(test)]

@@ -3,7 +3,9 @@
 use std::time::Instant;
 
 use glam::Vec3;
-use mlt_format::meta::{BasisStats, CameraInfo, LightInfo, Meta, SceneInfo, Timings};
+use mlt_format::meta::{
+    BasisStats, CameraInfo, LightInfo, Meta, SceneInfo, Timings, TransportTimings,
+};
 use mlt_format::shepard::MIN_WEIGHT_SUM;
 use mlt_format::{BakeContents, IndexedBasis};
 use mlt_scenes::{LightKind, Scene, SpotFalloff};
@@ -11,9 +13,10 @@ use mlt_scenes::{LightKind, Scene, SpotFalloff};
 use crate::candidates::CandidatePool;
 use crate::error::BakeError;
 use crate::observer::Observer;
-use crate::params::{resolve, BakeOptions};
+use crate::params::{resolve, resolve_transport, BakeOptions};
 use crate::placement::{find_coarse_radius, place, Coarse, LevelPlan};
 use crate::poisson::DartSettings;
+use crate::transport::{check_params, compute_transport};
 
 /// The tool name and version recorded in files.
 pub fn tool_version() -> String {
@@ -25,6 +28,7 @@ pub struct BakeOutput {
     pub contents: BakeContents,
     /// Always measured; stored in the file only with `record_timings`.
     pub timings: Timings,
+    pub transport_timings: Option<TransportTimings>,
     pub warnings: Vec<String>,
 }
 
@@ -37,6 +41,11 @@ pub fn bake_scene(
     let t_total = Instant::now();
     let mut warnings = scene.warnings.clone();
     let (mut params, coarse) = resolve(opts, &scene.bake)?;
+    let transport_params = resolve_transport(opts, &scene.bake, &params);
+    if !opts.basis_only {
+        // Refuse bad transport parameters before spending time on the basis.
+        check_params(&transport_params, params.levels)?;
+    }
     let viewpoint = scene.viewpoint;
     if !viewpoint.is_finite() {
         return Err(BakeError::BadViewpoint {
@@ -161,6 +170,19 @@ pub fn bake_scene(
         warnings.push(w);
     }
 
+    let mut transport = None;
+    let mut transport_timings = None;
+    if !opts.basis_only {
+        let out = compute_transport(&ib, caster.as_ref(), transport_params, obs)?;
+        warnings.extend(out.warnings);
+        let mut t = out.transport;
+        if opts.record_timings {
+            t.meta.timings = Some(out.timings.clone());
+        }
+        transport_timings = Some(out.timings);
+        transport = Some(t);
+    }
+
     let (bounds_min, bounds_max) = caster.bounds();
     let timings = Timings {
         load_s: 0.0,
@@ -210,8 +232,13 @@ pub fn bake_scene(
         timings: opts.record_timings.then_some(timings.clone()),
     };
     Ok(BakeOutput {
-        contents: BakeContents { meta, basis: ib },
+        contents: BakeContents {
+            meta,
+            basis: ib,
+            transport,
+        },
         timings,
+        transport_timings,
         warnings,
     })
 }

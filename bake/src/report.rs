@@ -3,7 +3,7 @@
 use std::fmt::Write;
 
 use mlt_format::file::FileInfo;
-use mlt_format::meta::{Meta, Timings};
+use mlt_format::meta::{Meta, Timings, TransportMeta, TransportTimings};
 
 fn hms(s: f64) -> String {
     if s >= 60.0 {
@@ -94,6 +94,72 @@ pub fn bake_table(meta: &Meta, timings: &Timings, file_bytes: u64) -> String {
         );
     }
     let _ = writeln!(o, "file          {}", mb(file_bytes));
+    o
+}
+
+/// The transport part of the table printed after a bake (the paper's Table 1 and more).
+pub fn transport_table(t: &TransportMeta, timings: Option<&TransportTimings>) -> String {
+    let s = &t.stats;
+    let p = &t.params;
+    let mut o = String::new();
+    let _ = writeln!(
+        o,
+        "transport     epsilon {}  levels {}/{} (rcvr/sndr)  bounces {} (max {})  gather rays {}",
+        p.epsilon, p.receiver_levels, p.sender_levels, s.bounces, p.bounces, p.gather_rays
+    );
+    let _ = writeln!(
+        o,
+        "links         {} in S ({:.4} % of {} potential), {} in T",
+        s.links,
+        100.0 * s.links as f64 / s.potential_links.max(1) as f64,
+        s.potential_links,
+        s.t_links
+    );
+    let _ = writeln!(
+        o,
+        "rays          {} visibility rays; {} gather hits without sender support",
+        s.visibility_rays, s.unsupported_hits
+    );
+    let _ = writeln!(o, "rcvr level    refined     T links     S links");
+    for l in 0..s.receivers_refined.len() {
+        let _ = writeln!(
+            o,
+            "{l:>10}    {:<10}  {:<10}  {}",
+            s.receivers_refined[l],
+            s.t_links_per_level.get(l).copied().unwrap_or(0),
+            s.s_links_per_level.get(l).copied().unwrap_or(0)
+        );
+    }
+    let norms: Vec<String> = s
+        .bounce_sum_norm
+        .iter()
+        .map(|n| format!("{n:.3}"))
+        .collect();
+    let _ = writeln!(
+        o,
+        "bounces       spectral radius {:.4}; sum of link norms per bounce: {}",
+        s.spectral_radius,
+        norms.join(", ")
+    );
+    let _ = writeln!(
+        o,
+        "memory        basis {} + links {} = {} (f16 links, max quantisation error {:.2e})",
+        mb(s.basis_bytes),
+        mb(s.links_bytes),
+        mb(s.basis_bytes + s.links_bytes),
+        s.quantisation_error
+    );
+    if let Some(t) = timings {
+        let _ = writeln!(
+            o,
+            "transport time refinement {} + bounces {} = {}; {:.0} rays/s; peak memory {}",
+            hms(t.refine_s),
+            hms(t.bounces_s),
+            hms(t.total_s),
+            s.visibility_rays as f64 / t.refine_s.max(1e-9),
+            mb(t.peak_rss_bytes)
+        );
+    }
     o
 }
 

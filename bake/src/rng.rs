@@ -17,6 +17,7 @@ pub enum Stream {
     Particle = 1,
     Shuffle = 2,
     Hmd = 3,
+    Gather = 4,
 }
 
 /// SplitMix64 generator.

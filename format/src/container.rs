@@ -30,7 +30,7 @@ use crate::error::FormatError;
 
 pub const MAGIC: [u8; 8] = *b"\x89MLTBK\r\n";
 pub const VERSION_MAJOR: u16 = 1;
-pub const VERSION_MINOR: u16 = 0;
+pub const VERSION_MINOR: u16 = 1;
 pub const FIXED_HEADER: usize = 64;
 pub const ENTRY_SIZE: usize = 32;
 pub const ALIGN: usize = 16;

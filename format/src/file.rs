@@ -11,9 +11,10 @@ use rkyv::util::AlignedVec;
 use serde::Serialize;
 
 use crate::basis::Basis;
-use crate::container::{self, Header, SectionIn, ALIGN};
+use crate::container::{self, Header, SectionBytes, SectionIn, ALIGN};
 use crate::error::FormatError;
-use crate::meta::Meta;
+use crate::links::{ArchivedLinks, Links};
+use crate::meta::{Meta, TransportMeta};
 use crate::rtree::RTree;
 use crate::shepard::IndexedBasis;
 
@@ -21,6 +22,9 @@ use crate::shepard::IndexedBasis;
 pub const TAG_META: [u8; 4] = *b"META";
 pub const TAG_BASIS: [u8; 4] = *b"BASE";
 pub const TAG_RTREES: [u8; 4] = *b"RTRE";
+/// Added in format 1.1: the transport operator S and how it was made.
+pub const TAG_TRANSPORT: [u8; 4] = *b"TRNS";
+pub const TAG_LINKS: [u8; 4] = *b"SLNK";
 
 /// The R-trees of all levels, archived together.
 #[derive(Clone, Debug, Default, PartialEq, rkyv::Archive, rkyv::Serialize, rkyv::Deserialize)]
@@ -33,6 +37,15 @@ pub struct RTrees {
 pub struct BakeContents {
     pub meta: Meta,
     pub basis: IndexedBasis,
+    /// The transport operator, when the bake computed one.
+    pub transport: Option<Transport>,
+}
+
+/// The direct-to-indirect operator S with its parameters and statistics.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Transport {
+    pub meta: TransportMeta,
+    pub links: Links,
 }
 
 /// How to write.
@@ -59,23 +72,33 @@ pub fn encode(contents: &BakeContents, opts: WriteOptions) -> Result<Vec<u8>, Fo
         levels: contents.basis.trees.clone(),
     };
     let trees = rkyv::to_bytes::<rancor::Error>(&trees).map_err(ser_err(TAG_RTREES))?;
-    container::encode(&[
-        SectionIn {
-            tag: TAG_META,
-            bytes: &meta,
+    let mut sections = vec![(TAG_META, meta), (TAG_BASIS, basis), (TAG_RTREES, trees)];
+    if let Some(t) = &contents.transport {
+        let tm = rkyv::to_bytes::<rancor::Error>(&t.meta).map_err(ser_err(TAG_TRANSPORT))?;
+        let links = rkyv::to_bytes::<rancor::Error>(&t.links).map_err(ser_err(TAG_LINKS))?;
+        sections.push((TAG_TRANSPORT, tm));
+        sections.push((TAG_LINKS, links));
+    }
+    let ins: Vec<SectionIn> = sections
+        .iter()
+        .map(|(tag, bytes)| SectionIn {
+            tag: *tag,
+            bytes,
             compress: opts.compress,
-        },
-        SectionIn {
-            tag: TAG_BASIS,
-            bytes: &basis,
-            compress: opts.compress,
-        },
-        SectionIn {
-            tag: TAG_RTREES,
-            bytes: &trees,
-            compress: opts.compress,
-        },
-    ])
+        })
+        .collect();
+    container::encode(&ins)
+}
+
+/// Bytes each section of `contents` takes uncompressed, by tag (for statistics).
+pub fn section_sizes(contents: &BakeContents) -> Result<Vec<([u8; 4], u64)>, FormatError> {
+    let bytes = encode(contents, WriteOptions { compress: false })?;
+    let header = container::parse_header(Path::new("(in memory)"), &bytes)?;
+    Ok(header
+        .sections
+        .iter()
+        .map(|e| (e.tag, e.stored_len))
+        .collect())
 }
 
 /// Writes `bytes` to `path` through a temporary file in the same directory that is renamed
@@ -184,6 +207,10 @@ impl BakedFile {
         self.header.file_len
     }
 
+    fn has_section(&self, tag: [u8; 4]) -> bool {
+        self.header.sections.iter().any(|e| e.tag == tag)
+    }
+
     fn section<T>(&self, tag: [u8; 4]) -> Result<T, FormatError>
     where
         T: rkyv::Archive,
@@ -227,12 +254,59 @@ impl BakedFile {
         })
     }
 
-    /// Reads everything.
+    /// The `TRNS` section, if the file has one.
+    pub fn transport_meta(&self) -> Result<Option<TransportMeta>, FormatError> {
+        if !self.has_section(TAG_TRANSPORT) {
+            return Ok(None);
+        }
+        self.section::<TransportMeta>(TAG_TRANSPORT).map(Some)
+    }
+
+    /// The bytes of the `SLNK` section, if present: borrowed from the mapping when stored
+    /// uncompressed. Pass them to [`access_links`] for zero-copy, validated access.
+    pub fn links_bytes(&self) -> Result<Option<SectionBytes<'_>>, FormatError> {
+        match self.header.sections.iter().find(|e| e.tag == TAG_LINKS) {
+            None => Ok(None),
+            Some(e) => container::section_bytes(&self.path, self.bytes(), e).map(Some),
+        }
+    }
+
+    /// Reads everything (the links copied into owned memory).
     pub fn contents(&self) -> Result<BakeContents, FormatError> {
+        let transport = match self.transport_meta()? {
+            None => None,
+            Some(meta) => {
+                let links = self.section::<Links>(TAG_LINKS)?;
+                links.validate().map_err(|e| self.bad_links(e))?;
+                Some(Transport { meta, links })
+            }
+        };
         Ok(BakeContents {
             meta: self.meta()?,
             basis: self.basis()?,
+            transport,
         })
+    }
+
+    fn bad_links(&self, e: FormatError) -> FormatError {
+        FormatError::BadSection {
+            path: self.path.clone(),
+            tag: "SLNK".into(),
+            detail: e.to_string(),
+        }
+    }
+
+    /// Validated zero-copy access to links whose bytes came from [`BakedFile::links_bytes`].
+    pub fn access_links<'b>(&self, bytes: &'b [u8]) -> Result<&'b ArchivedLinks, FormatError> {
+        let links = rkyv::access::<ArchivedLinks, rancor::Error>(bytes).map_err(|e| {
+            FormatError::BadSection {
+                path: self.path.clone(),
+                tag: "SLNK".into(),
+                detail: e.to_string(),
+            }
+        })?;
+        links.validate().map_err(|e| self.bad_links(e))?;
+        Ok(links)
     }
 
     /// A summary for `bake info`.
@@ -266,6 +340,7 @@ impl BakedFile {
             points: b.len() as u64,
             levels,
             meta,
+            transport: self.transport_meta()?,
         })
     }
 }
@@ -280,6 +355,7 @@ pub struct FileInfo {
     pub points: u64,
     pub levels: Vec<LevelInfo>,
     pub meta: Meta,
+    pub transport: Option<TransportMeta>,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -297,4 +373,31 @@ pub struct LevelInfo {
     pub points: u64,
     pub disk_radius: f32,
     pub support_radius: f32,
+}
+
+/// Bytes of `value` as an rkyv archive (a section's raw size).
+pub fn archived_len<T>(value: &T) -> Result<u64, FormatError>
+where
+    T: for<'a> rkyv::Serialize<
+        rkyv::api::high::HighSerializer<
+            AlignedVec,
+            rkyv::ser::allocator::ArenaHandle<'a>,
+            rancor::Error,
+        >,
+    >,
+{
+    rkyv::to_bytes::<rancor::Error>(value)
+        .map(|b| b.len() as u64)
+        .map_err(|e| FormatError::Serialize {
+            tag: "size".into(),
+            detail: e.to_string(),
+        })
+}
+
+/// Bytes of the basis and its R-trees as stored.
+pub fn basis_archived_len(ib: &IndexedBasis) -> Result<u64, FormatError> {
+    let trees = RTrees {
+        levels: ib.trees.clone(),
+    };
+    Ok(archived_len(&ib.basis)? + archived_len(&trees)?)
 }

@@ -25,7 +25,7 @@ pub mod shepard;
 
 pub use basis::Basis;
 pub use error::FormatError;
-pub use file::{BakeContents, BakedFile, WriteOptions};
+pub use file::{BakeContents, BakedFile, Transport, WriteOptions};
 pub use meta::Meta;
 pub use rtree::RTree;
 pub use shepard::{IndexedBasis, Support};

@@ -149,3 +149,78 @@ data! {
         pub threads: u32,
     }
 }
+
+data! {
+    /// The `TRNS` section: how the transport operator S was computed, and what it cost.
+    pub struct TransportMeta {
+        pub params: TransportParams,
+        pub stats: TransportStats,
+        /// Wall-clock timings and peak memory; absent unless recorded (see [`Meta::timings`]).
+        pub timings: Option<TransportTimings>,
+    }
+}
+
+data! {
+    /// Parameters of the transport precomputation (section 3.2).
+    pub struct TransportParams {
+        /// Link threshold epsilon (paper: 0.025).
+        pub epsilon: f32,
+        /// Sender levels (paper: 3) and receiver levels (paper: 6).
+        pub sender_levels: u32,
+        pub receiver_levels: u32,
+        /// Most bounces in the Neumann series S = T + T^2 + ... (paper: 4).
+        pub bounces: u32,
+        /// Rays per receiver gather (Eq. 16).
+        pub gather_rays: u32,
+        /// Bounces 2 and later on every refined receiver instead of the coarsest only (the
+        /// paper's choice).
+        pub bounces_on_all_receivers: bool,
+        pub seed: u64,
+    }
+}
+
+data! {
+    /// The paper's Table 1 columns and more (all deterministic counts).
+    pub struct TransportStats {
+        /// Links in S.
+        pub links: u64,
+        /// Senders x receivers.
+        pub potential_links: u64,
+        /// Links of the single-bounce operator T.
+        pub t_links: u64,
+        pub senders: u64,
+        pub receivers: u64,
+        /// Gather rays cast (the paper's "visibility rays").
+        pub visibility_rays: u64,
+        /// Gather hits where no sender level had support.
+        pub unsupported_hits: u64,
+        /// Per receiver level: receivers whose links were computed.
+        pub receivers_refined: Vec<u64>,
+        /// Per receiver level: links of T kept, and links of S.
+        pub t_links_per_level: Vec<u64>,
+        pub s_links_per_level: Vec<u64>,
+        /// Bounces computed (1 = T only), and per bounce the largest link norm and the sum of
+        /// link norms of its increment (before truncation).
+        pub bounces: u32,
+        pub bounce_max_norm: Vec<f64>,
+        pub bounce_sum_norm: Vec<f64>,
+        /// Power-iteration estimate of the spectral radius of the bounce operator.
+        pub spectral_radius: f64,
+        /// Largest absolute error of the half-float storage of S.
+        pub quantisation_error: f32,
+        /// Bytes of the basis (points and R-trees) and of the links as stored.
+        pub basis_bytes: u64,
+        pub links_bytes: u64,
+    }
+}
+
+data! {
+    /// Wall-clock cost of the transport precomputation.
+    pub struct TransportTimings {
+        pub refine_s: f64,
+        pub bounces_s: f64,
+        pub total_s: f64,
+        pub peak_rss_bytes: u64,
+        pub threads: u32,
+    }
+}

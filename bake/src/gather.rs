@@ -1,0 +1,166 @@
+//! The hemispherical gather of Eq. 16: one receiver's links from all senders at once,
+//!
+//! `T'_ij = 1/pi * integral over the hemisphere of B_j(r(x_i, w)) rho(r(x_i, w)) w dw`,
+//!
+//! i.e. the vector irradiance at receiver `i` when sender `j` carries unit scalar irradiance
+//! (the outgoing radiance of a Lambertian surface with irradiance `E` is `rho E / pi`; the
+//! paper's Eq. 16 leaves the `1/pi` to its normalisation of `B_j`). Directions are uniform
+//! over the hemisphere (a cosine-weighted pattern would put `1/cos` into the tangential
+//! components) in a fixed Hammersley pattern, `cos theta_k = (k + 1/2) / N` and
+//! `phi_k = 2 pi radical_inverse(k)`, rotated about the normal by a random angle per receiver
+//! (as the tech report's gathers). The midpoint rule in `cos theta` integrates the normal
+//! component exactly for uniform radiance. The angle comes from a stream keyed by the
+//! receiver's index, so the result does not depend on the thread that computes it.
+
+use glam::Vec3;
+use mlt_format::links::LINK_DIM;
+use mlt_format::shepard::MIN_WEIGHT_SUM;
+use mlt_format::IndexedBasis;
+use mlt_scenes::RayCaster;
+
+use crate::rng::{Rng, Stream};
+use crate::sampling::tangent_frame;
+
+/// A dense accumulator over senders with a list of the ones touched, reused between
+/// receivers (no allocation per ray or per link).
+pub struct Scratch {
+    pub acc: Vec<[f32; LINK_DIM]>,
+    touched_mark: Vec<bool>,
+    pub touched: Vec<u32>,
+    /// `(sender, weight)` of one level at one hit.
+    weights: Vec<(u32, f32)>,
+}
+
+impl Scratch {
+    pub fn new(senders: usize) -> Scratch {
+        Scratch {
+            acc: vec![[0.0; LINK_DIM]; senders],
+            touched_mark: vec![false; senders],
+            touched: Vec::new(),
+            weights: Vec::new(),
+        }
+    }
+
+    #[inline]
+    pub fn add(&mut self, j: u32, v: &[f32; LINK_DIM], scale: f32) {
+        let ju = j as usize;
+        if !self.touched_mark[ju] {
+            self.touched_mark[ju] = true;
+            self.touched.push(j);
+        }
+        let a = &mut self.acc[ju];
+        for d in 0..LINK_DIM {
+            a[d] += scale * v[d];
+        }
+    }
+
+    /// The value for sender `j` (zero when untouched).
+    #[inline]
+    pub fn get(&self, j: u32) -> &[f32; LINK_DIM] {
+        &self.acc[j as usize]
+    }
+
+    pub fn clear(&mut self) {
+        for &j in &self.touched {
+            self.acc[j as usize] = [0.0; LINK_DIM];
+            self.touched_mark[j as usize] = false;
+        }
+        self.touched.clear();
+    }
+}
+
+/// Counts from one gather.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct GatherCounts {
+    pub rays: u64,
+    /// Hits at which some sender level had no support.
+    pub unsupported: u64,
+}
+
+/// Adds `T'_ij` for every sender `j` (points of levels `0..sender_levels`) seen from receiver
+/// `i` to `scratch` (Eq. 16).
+#[allow(clippy::too_many_arguments)]
+pub fn gather(
+    ib: &IndexedBasis,
+    caster: &dyn RayCaster,
+    receiver: usize,
+    sender_levels: usize,
+    rays: u32,
+    seed: u64,
+    eps: f32,
+    scratch: &mut Scratch,
+) -> GatherCounts {
+    let b = &ib.basis;
+    let x = Vec3::from(b.positions[receiver]);
+    let n = Vec3::from(b.normals[receiver]);
+    let (t, bt) = tangent_frame(n);
+    let mut rng = Rng::new(seed, Stream::Gather, receiver as u64);
+    let rotation = rng.next_f32();
+    // Uniform hemisphere: pdf 1/(2 pi); with the 1/pi of Eq. 16 each ray weighs 2/N.
+    let w_ray = 2.0 / rays as f32;
+    let origin = x + n * eps;
+    let mut counts = GatherCounts::default();
+    for k in 0..rays {
+        let cos_t = (k as f32 + 0.5) / rays as f32;
+        let phi = std::f32::consts::TAU * (radical_inverse(k) + rotation).fract();
+        let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
+        let dir = (t * (sin_t * phi.cos()) + bt * (sin_t * phi.sin()) + n * cos_t).normalize();
+        counts.rays += 1;
+        let Some(hit) = caster.intersect(origin, dir, 0.0, f32::INFINITY) else {
+            continue;
+        };
+        let (y, ny) = (hit.position.to_array(), hit.shading_normal.to_array());
+        let rho = hit.albedo;
+        let v: [f32; LINK_DIM] = [
+            rho[0] * dir.x,
+            rho[0] * dir.y,
+            rho[0] * dir.z,
+            rho[1] * dir.x,
+            rho[1] * dir.y,
+            rho[1] * dir.z,
+            rho[2] * dir.x,
+            rho[2] * dir.y,
+            rho[2] * dir.z,
+        ];
+        for m in 0..sender_levels {
+            let mut weights = std::mem::take(&mut scratch.weights);
+            weights.clear();
+            let sum = ib.for_each_weight(m, y, ny, |j, w| weights.push((j as u32, w)));
+            if sum > MIN_WEIGHT_SUM {
+                let inv = w_ray / sum;
+                for &(j, w) in &weights {
+                    scratch.add(j, &v, w * inv);
+                }
+            } else {
+                counts.unsupported += 1;
+            }
+            scratch.weights = weights;
+        }
+    }
+    counts
+}
+
+/// Van der Corput radical inverse in base 2.
+#[inline]
+pub fn radical_inverse(k: u32) -> f32 {
+    (k.reverse_bits() as f64 / 4_294_967_296.0) as f32
+}
+
+/// The magnitude of a link: the largest length of its three per-channel vectors.
+#[inline]
+pub fn link_norm(v: &[f32; LINK_DIM]) -> f32 {
+    let mut m = 0.0f32;
+    for c in 0..3 {
+        let l = (v[3 * c] * v[3 * c] + v[3 * c + 1] * v[3 * c + 1] + v[3 * c + 2] * v[3 * c + 2])
+            .sqrt();
+        m = m.max(l);
+    }
+    m
+}
+
+/// `link_norm(a - b)`.
+#[inline]
+pub fn link_distance(a: &[f32; LINK_DIM], b: &[f32; LINK_DIM]) -> f32 {
+    let d: [f32; LINK_DIM] = std::array::from_fn(|k| a[k] - b[k]);
+    link_norm(&d)
+}

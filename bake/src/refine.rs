@@ -1,0 +1,216 @@
+//! Adaptive computation of the single-bounce operator T (Lehtinen et al. 2008, section 3.2,
+//! Fig. 5): receiver-centric refinement, one receiver level at a time so that all parent
+//! links needed by Eq. 17 exist (or were judged negligible) before a child is processed.
+//!
+//! For each queued receiver: gather `T'_ij` from all senders (Eq. 16), subtract the parents'
+//! contributions over all coarser receiver levels (Eq. 17), then keep a link when
+//! - the sender is on the coarsest level and `||T_ij|| > epsilon`, or
+//! - the sender is finer, `||T_ij|| > epsilon` and `max_k ||T_ij - T_ik|| > epsilon` over the
+//!   sender's neighbours `k` (Appendix A: finer senders carry deviations from local averages,
+//!   so similar links to neighbouring senders cancel).
+//!
+//! When any link of a receiver was kept, its children are queued for the next level. The
+//! receivers of a level are processed in parallel; each one's result depends only on its index,
+//! the seed and the coarser levels, so T is identical for any thread count.
+
+use mlt_format::adjacency::Csr;
+use mlt_format::links::LINK_DIM;
+use mlt_format::IndexedBasis;
+use mlt_scenes::RayCaster;
+use rayon::prelude::*;
+
+use crate::gather::{gather, link_distance, link_norm, GatherCounts, Scratch};
+
+/// Receiver-major links of T: one row per processed receiver.
+#[derive(Clone, Debug, Default)]
+pub struct ReceiverLinks {
+    /// Global receiver index -> row, or `NONE`.
+    pub row_of: Vec<u32>,
+    /// Row -> global receiver index (ascending within a level; levels in order).
+    pub rows: Vec<u32>,
+    /// `rows.len() + 1` offsets into `senders`/`values`.
+    pub offsets: Vec<u32>,
+    pub senders: Vec<u32>,
+    pub values: Vec<[f32; LINK_DIM]>,
+}
+
+pub const NONE: u32 = u32::MAX;
+
+impl ReceiverLinks {
+    fn new(receivers: usize) -> ReceiverLinks {
+        ReceiverLinks {
+            row_of: vec![NONE; receivers],
+            offsets: vec![0],
+            ..Default::default()
+        }
+    }
+
+    /// The links of receiver `i` (empty when it was not processed).
+    pub fn row(&self, i: usize) -> (&[u32], &[[f32; LINK_DIM]]) {
+        match self.row_of[i] {
+            NONE => (&[], &[]),
+            r => {
+                let (a, b) = (
+                    self.offsets[r as usize] as usize,
+                    self.offsets[r as usize + 1] as usize,
+                );
+                (&self.senders[a..b], &self.values[a..b])
+            }
+        }
+    }
+
+    fn push_row(&mut self, receiver: u32, links: &[(u32, [f32; LINK_DIM])]) {
+        self.row_of[receiver as usize] = self.rows.len() as u32;
+        self.rows.push(receiver);
+        for (s, v) in links {
+            self.senders.push(*s);
+            self.values.push(*v);
+        }
+        self.offsets.push(self.senders.len() as u32);
+    }
+
+    pub fn link_count(&self) -> usize {
+        self.senders.len()
+    }
+}
+
+/// Parameters of the refinement.
+#[derive(Clone, Copy, Debug)]
+pub struct RefineSettings {
+    pub epsilon: f32,
+    pub sender_levels: usize,
+    pub gather_rays: u32,
+    pub seed: u64,
+}
+
+/// Counts per receiver level.
+#[derive(Clone, Debug, Default)]
+pub struct RefineStats {
+    pub receivers_refined: Vec<u64>,
+    pub links_per_level: Vec<u64>,
+    pub rays: u64,
+    pub unsupported_hits: u64,
+}
+
+struct Processed {
+    links: Vec<(u32, [f32; LINK_DIM])>,
+    counts: GatherCounts,
+}
+
+/// Computes T adaptively. `neighbors` and `children` are the basis' adjacency
+/// (see `mlt_format::adjacency`); `on_level(l, receivers, links)` reports progress.
+pub fn refine(
+    ib: &IndexedBasis,
+    caster: &dyn RayCaster,
+    neighbors: &Csr,
+    children: &Csr,
+    settings: &RefineSettings,
+    mut on_level: impl FnMut(usize, usize, usize),
+) -> (ReceiverLinks, RefineStats) {
+    let b = &ib.basis;
+    let senders = b.level_offsets[settings.sender_levels] as usize;
+    let sender_coarsest = b.level_offsets[1];
+    let eps_ray = caster.ray_epsilon();
+    let mut t = ReceiverLinks::new(b.len());
+    let mut stats = RefineStats::default();
+    let mut queue: Vec<u32> = b.level_range(0).map(|i| i as u32).collect();
+    for l in 0..b.levels() {
+        let done: Vec<Processed> = queue
+            .par_iter()
+            .map_init(
+                || Scratch::new(senders),
+                |scratch, &i| {
+                    process(
+                        ib,
+                        caster,
+                        &t,
+                        neighbors,
+                        settings,
+                        sender_coarsest,
+                        eps_ray,
+                        l,
+                        i as usize,
+                        scratch,
+                    )
+                },
+            )
+            .collect();
+        let mut next = Vec::new();
+        let mut kept = 0u64;
+        for (&i, p) in queue.iter().zip(&done) {
+            stats.rays += p.counts.rays;
+            stats.unsupported_hits += p.counts.unsupported;
+            kept += p.links.len() as u64;
+            t.push_row(i, &p.links);
+            if !p.links.is_empty() && l + 1 < b.levels() {
+                next.extend_from_slice(children.row(i as usize));
+            }
+        }
+        stats.receivers_refined.push(queue.len() as u64);
+        stats.links_per_level.push(kept);
+        on_level(l, queue.len(), kept as usize);
+        next.sort_unstable();
+        next.dedup();
+        queue = next;
+    }
+    (t, stats)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn process(
+    ib: &IndexedBasis,
+    caster: &dyn RayCaster,
+    t: &ReceiverLinks,
+    neighbors: &Csr,
+    settings: &RefineSettings,
+    sender_coarsest: u32,
+    eps_ray: f32,
+    level: usize,
+    i: usize,
+    scratch: &mut Scratch,
+) -> Processed {
+    scratch.clear();
+    let counts = gather(
+        ib,
+        caster,
+        i,
+        settings.sender_levels,
+        settings.gather_rays,
+        settings.seed,
+        eps_ray,
+        scratch,
+    );
+    // Eq. 17: subtract what the coarser receiver levels already represent at p_i, using the
+    // links they kept (discarded links are zero in the representation).
+    let (x, n) = (ib.basis.positions[i], ib.basis.normals[i]);
+    for m in 0..level {
+        ib.for_each_basis_value(m, x, n, |k, bk| {
+            let (senders, values) = t.row(k);
+            for (s, v) in senders.iter().zip(values) {
+                scratch.add(*s, v, -bk);
+            }
+        });
+    }
+    // Keep rules of Fig. 5, in ascending sender order (canonical output).
+    let mut touched = std::mem::take(&mut scratch.touched);
+    touched.sort_unstable();
+    let eps = settings.epsilon;
+    let mut links = Vec::new();
+    for &j in &touched {
+        let v = scratch.get(j);
+        if link_norm(v) <= eps {
+            continue;
+        }
+        let keep = j < sender_coarsest
+            || neighbors
+                .row(j as usize)
+                .iter()
+                .any(|&k| link_distance(v, scratch.get(k)) > eps)
+            || neighbors.row(j as usize).is_empty();
+        if keep {
+            links.push((j, *v));
+        }
+    }
+    scratch.touched = touched;
+    Processed { links, counts }
+}
