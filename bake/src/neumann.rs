@@ -25,9 +25,12 @@ use rayon::prelude::*;
 use crate::gather::link_norm;
 use crate::refine::ReceiverLinks;
 
+/// One row of links: `(sender, value)`, ascending by sender.
+pub type Row = Vec<(u32, [f32; LINK_DIM])>;
+
 /// One bounce's links: `rows[r]` for row `r` of T (rows of level 0 come first, and row `i`
 /// is level-0 receiver `i`).
-pub type Rows = Vec<Vec<(u32, [f32; LINK_DIM])>>;
+pub type Rows = Vec<Row>;
 
 /// Which receivers bounces 2 and later are computed on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -47,6 +50,8 @@ pub struct SeriesReport {
     /// truncation.
     pub max_norm: Vec<f64>,
     pub sum_norm: Vec<f64>,
+    /// Per bounce, the sum of the norms of the links above epsilon.
+    pub kept_sum_norm: Vec<f64>,
     pub spectral_radius: f64,
     /// The series was stopped early because a bounce's links all fell below epsilon.
     pub converged_early: bool,
@@ -130,9 +135,11 @@ pub fn series(
                 (m.max(n), s + n)
             })
     };
+    // T's links are already the kept ones: nothing of the first bounce is truncated here.
     let (m1, s1) = norms(&first);
     report.max_norm.push(m1);
     report.sum_norm.push(s1);
+    report.kept_sum_norm.push(s1);
     let mut total: Rows = vec![Vec::new(); out_rows];
     // Level-0 rows of the previous bounce: the next bounce's sender input.
     let mut prev = first;
@@ -152,7 +159,7 @@ pub fn series(
                     .collect()
             })
             .collect();
-        let products: Vec<(Vec<(u32, [f32; LINK_DIM])>, f64, f64)> = (0..out_rows)
+        let products: Vec<(Row, f64, f64)> = (0..out_rows)
             .into_par_iter()
             .map_init(
                 || {
@@ -210,6 +217,7 @@ pub fn series(
         report.bounces = b;
         let rows: Rows = products.into_iter().map(|p| p.0).collect();
         let kept: usize = rows.iter().map(|r| r.len()).sum();
+        report.kept_sum_norm.push(norms(&rows).1);
         on_bounce(b, kept);
         if kept == 0 {
             report.converged_early = true;

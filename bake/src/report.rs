@@ -232,5 +232,9 @@ pub fn info_text(info: &FileInfo) -> String {
             t.threads
         );
     }
+    match &info.transport {
+        Some(t) => o.push_str(&transport_table(t, t.timings.as_ref())),
+        None => o.push_str("transport     none (basis only)\n"),
+    }
     o
 }

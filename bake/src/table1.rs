@@ -106,7 +106,10 @@ fn ratio(a: Option<f64>, b: Option<f64>) -> String {
 }
 
 /// The Table-1 columns of `rows` as (name, formatted values, numeric values).
-fn columns(rows: &[&Table1Row]) -> Vec<(&'static str, Vec<String>, Vec<Option<f64>>)> {
+/// A column: its name, formatted values, and numeric values (for ratios).
+type Column = (&'static str, Vec<String>, Vec<Option<f64>>);
+
+fn columns(rows: &[&Table1Row]) -> Vec<Column> {
     let col = |name, f: &dyn Fn(&Table1Row) -> (String, Option<f64>)| {
         let (s, v): (Vec<String>, Vec<Option<f64>>) = rows.iter().map(|r| f(r)).unzip();
         (name, s, v)

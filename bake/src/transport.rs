@@ -10,7 +10,7 @@ use mlt_format::{IndexedBasis, Transport};
 use mlt_scenes::RayCaster;
 
 use crate::error::BakeError;
-use crate::neumann::{merge, series, spectral_radius, BounceReceivers};
+use crate::neumann::{merge, series, spectral_radius, BounceReceivers, Row};
 use crate::observer::Observer;
 use crate::refine::{refine, RefineSettings};
 
@@ -104,7 +104,7 @@ pub fn compute_transport(
     let t1 = Instant::now();
     let rho = spectral_radius(ib, &t);
     // At 1 - 1e-4 the series would need some 10^5 bounces; treat it as divergent.
-    if !(rho < 1.0 - 1e-4) {
+    if rho.is_nan() || rho >= 1.0 - 1e-4 {
         return Err(BakeError::Divergent {
             spectral_radius: rho,
         });
@@ -173,7 +173,7 @@ pub fn compute_transport(
         }
     }
     triples.sort_unstable_by_key(|&(s, r, _)| (s, r));
-    let mut columns: Vec<(u32, Vec<(u32, [f32; LINK_DIM])>)> = Vec::new();
+    let mut columns: Vec<(u32, Row)> = Vec::new();
     for (s, r, v) in triples {
         match columns.last_mut() {
             Some((cs, col)) if *cs == s => col.push((r, v)),
@@ -205,6 +205,7 @@ pub fn compute_transport(
         bounces: report.bounces,
         bounce_max_norm: report.max_norm,
         bounce_sum_norm: report.sum_norm,
+        bounce_kept_sum_norm: report.kept_sum_norm,
         spectral_radius: rho,
         quantisation_error: qerr,
         basis_bytes,

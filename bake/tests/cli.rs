@@ -28,6 +28,14 @@ fn bakes_a_builtin_writes_stats_and_reports_info() {
             "20",
             "--threads",
             "2",
+            "--sender-levels",
+            "1",
+            "--gather-rays",
+            "64",
+            "--epsilon",
+            "0.01",
+            "--bounces",
+            "3",
             "-o",
         ])
         .arg(&out)
@@ -44,6 +52,13 @@ fn bakes_a_builtin_writes_stats_and_reports_info() {
         serde_json::from_str(&std::fs::read_to_string(&stats).unwrap()).unwrap();
     let levels = json["meta"]["stats"]["levels"].as_array().unwrap();
     assert_eq!(levels.len(), 2);
+    let t = &json["transport"];
+    assert_eq!(t["params"]["epsilon"].as_f64().unwrap() as f32, 0.01);
+    assert_eq!(t["params"]["sender_levels"], 1);
+    assert_eq!(t["params"]["gather_rays"], 64);
+    assert!(t["stats"]["links"].as_u64().unwrap() > 0);
+    assert!(t["timings"]["refine_s"].as_f64().is_some());
+    assert!(err.contains("links "), "{err}");
     assert_eq!(
         json["file_bytes"].as_u64().unwrap(),
         std::fs::metadata(&out).unwrap().len()
@@ -52,7 +67,7 @@ fn bakes_a_builtin_writes_stats_and_reports_info() {
     let r = bake().arg("info").arg(&out).arg("--json").output().unwrap();
     assert!(r.status.success());
     let info: serde_json::Value = serde_json::from_slice(&r.stdout).unwrap();
-    assert_eq!(info["format_version"], "1.0");
+    assert_eq!(info["format_version"], "1.1");
     assert_eq!(info["meta"]["scene"]["source"], "builtin:cornell");
     let total: u64 = info["levels"]
         .as_array()
@@ -62,7 +77,54 @@ fn bakes_a_builtin_writes_stats_and_reports_info() {
         .sum();
     assert_eq!(total, info["points"].as_u64().unwrap());
     let r = bake().arg("info").arg(&out).output().unwrap();
-    assert!(String::from_utf8_lossy(&r.stdout).contains("R_coarse"));
+    let text = String::from_utf8_lossy(&r.stdout);
+    assert!(
+        text.contains("R_coarse") && text.contains("links"),
+        "{text}"
+    );
+
+    // Table 1 next to the paper's Sponza row, from the file and from the statistics JSON.
+    for input in [&out, &stats] {
+        let r = bake()
+            .arg("stats")
+            .arg(input)
+            .args(["--against", "paper:sponza"])
+            .output()
+            .unwrap();
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let text = String::from_utf8_lossy(&r.stdout);
+        assert!(
+            text.contains("ratio") && text.contains("paper: Sponza"),
+            "{text}"
+        );
+        assert!(
+            text.lines().any(|l| l.starts_with("visibility rays")),
+            "{text}"
+        );
+    }
+    let r = bake()
+        .arg("stats")
+        .arg(&out)
+        .args(["--against", "paper:sponza", "--json"])
+        .output()
+        .unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&r.stdout).unwrap();
+    let links = v["columns"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["column"] == "links")
+        .unwrap();
+    let ours = links["numbers"][0].as_f64().unwrap();
+    assert!((links["ratio"].as_f64().unwrap() - ours / 973000.0).abs() < 1e-9);
+    let r = bake()
+        .arg("stats")
+        .arg(&out)
+        .args(["--against", "paper:nowhere"])
+        .output()
+        .unwrap();
+    assert!(!r.status.success());
+    assert!(String::from_utf8_lossy(&r.stderr).contains("nowhere"));
     let _ = std::fs::remove_dir_all(&d);
 }
 

@@ -204,6 +204,9 @@ data! {
         pub bounces: u32,
         pub bounce_max_norm: Vec<f64>,
         pub bounce_sum_norm: Vec<f64>,
+        /// Per bounce, the sum of the norms of the links kept (above epsilon): with
+        /// `bounce_sum_norm`, how much each bounce lost to truncation.
+        pub bounce_kept_sum_norm: Vec<f64>,
         /// Power-iteration estimate of the spectral radius of the bounce operator.
         pub spectral_radius: f64,
         /// Largest absolute error of the half-float storage of S.

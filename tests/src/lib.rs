@@ -18,13 +18,15 @@ pub fn repo_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-/// Bakes `spec` with `levels` levels and about `coarse` level-0 points on `threads` threads.
+/// Bakes the basis only of `spec` with `levels` levels and about `coarse` level-0 points on
+/// `threads` threads.
 pub fn bake_small(spec: &str, levels: u32, coarse: u32, threads: usize) -> BakeOutput {
     bake_with(
         spec,
         BakeOptions {
             receiver_levels: Some(levels),
             coarse_count: Some(coarse),
+            basis_only: true,
             ..Default::default()
         },
         threads,

@@ -148,3 +148,108 @@ fn albedo_one_or_more_is_refused_with_a_reason() {
         assert!(msg.contains("spectral radius"), "{msg}");
     }
 }
+
+/// A small Cornell bake with transport at the paper's epsilon.
+fn cornell_with_transport(threads: usize) -> mlt_bake::BakeOutput {
+    bake_with(
+        "builtin:cornell",
+        BakeOptions {
+            receiver_levels: Some(4),
+            coarse_count: Some(40),
+            sender_levels: Some(2),
+            gather_rays: Some(128),
+            ..Default::default()
+        },
+        threads,
+    )
+}
+
+#[test]
+fn transport_is_identical_with_one_and_two_threads_and_round_trips() {
+    let a = cornell_with_transport(1);
+    let b = cornell_with_transport(2);
+    let ea = mlt_format::file::encode(&a.contents, WriteOptions::default()).unwrap();
+    let eb = mlt_format::file::encode(&b.contents, WriteOptions::default()).unwrap();
+    assert!(ea == eb, "files differ between 1 and 2 threads");
+    let t = a.contents.transport.as_ref().expect("transport computed");
+    assert!(t.links.link_count() > 0);
+    for compress in [false, true] {
+        let bytes = mlt_format::file::encode(&a.contents, WriteOptions { compress }).unwrap();
+        let f = BakedFile::from_bytes(std::path::Path::new("c.mlt"), &bytes).unwrap();
+        let back = f.contents().unwrap();
+        assert_eq!(back, a.contents);
+        let lb = f.links_bytes().unwrap().unwrap();
+        let archived = f.access_links(&lb).unwrap();
+        assert_eq!(archived.link_count(), t.links.link_count());
+    }
+    // The statistics add up.
+    let s = &t.meta.stats;
+    assert_eq!(s.links, t.links.link_count() as u64);
+    assert_eq!(s.s_links_per_level.iter().sum::<u64>(), s.links);
+    assert_eq!(s.t_links_per_level.iter().sum::<u64>(), s.t_links);
+    assert_eq!(
+        s.receivers_refined[0],
+        a.contents.basis.basis.level_range(0).len() as u64
+    );
+    assert_eq!(
+        s.visibility_rays,
+        128 * s.receivers_refined.iter().sum::<u64>()
+    );
+    assert!(s.quantisation_error < 1e-3 * t.meta.params.epsilon.max(1.0));
+}
+
+#[test]
+fn refinement_adapts_to_corners_and_contacts_not_flat_walls() {
+    let out = bake_with(
+        "builtin:cornell",
+        BakeOptions {
+            receiver_levels: Some(4),
+            coarse_count: Some(60),
+            sender_levels: Some(2),
+            gather_rays: Some(128),
+            ..Default::default()
+        },
+        2,
+    );
+    let ib = &out.contents.basis;
+    let links = &out.contents.transport.as_ref().unwrap().links;
+    let mut linked = vec![false; ib.basis.len()];
+    for &r in &links.receiver_ids {
+        linked[r as usize] = true;
+    }
+    // Classify the finest level's points by their harmonic mean distance to the geometry
+    // over the hemisphere: small near corners, edges and the blocks' contact with the floor,
+    // large in the middle of walls.
+    let scene = mlt_scenes::load_scene("builtin:cornell").unwrap();
+    let caster = scene.build_caster();
+    let eps = caster.ray_epsilon();
+    let finest = ib.levels() - 1;
+    let (mut near, mut near_linked, mut open, mut open_linked) = (0, 0, 0, 0);
+    for j in ib.basis.level_range(finest) {
+        let c = mlt_bake::candidates::Candidate {
+            position: Vec3::from(ib.basis.positions[j]),
+            normal: Vec3::from(ib.basis.normals[j]),
+            geometric_normal: Vec3::from(ib.basis.normals[j]),
+        };
+        let mut rng = mlt_bake::rng::Rng::new(5, mlt_bake::rng::Stream::Hmd, j as u64);
+        let hmd =
+            mlt_bake::poisson::harmonic_mean_distance(caster.as_ref(), &c, 1.0, 64, eps, &mut rng);
+        if hmd < 0.06 {
+            near += 1;
+            near_linked += linked[j] as usize;
+        } else if hmd > 0.2 {
+            open += 1;
+            open_linked += linked[j] as usize;
+        }
+    }
+    let near_share = near_linked as f64 / near.max(1) as f64;
+    let open_share = open_linked as f64 / open.max(1) as f64;
+    eprintln!(
+        "finest level: {near_linked}/{near} points near corners and contacts carry links ({near_share:.3}), {open_linked}/{open} in open regions ({open_share:.3})"
+    );
+    assert!(near > 20 && open > 20, "{near} {open}");
+    assert!(
+        near_share > 2.0 * open_share,
+        "refinement does not favour corners: {near_share} vs {open_share}"
+    );
+}
