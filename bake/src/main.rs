@@ -82,6 +82,10 @@ struct BakeArgs {
     /// Link threshold epsilon (paper: 0.025).
     #[arg(long)]
     epsilon: Option<f32>,
+    /// Truncation threshold of bounces 2 and later (default: epsilon, as the paper; a smaller
+    /// value keeps multi-bounce energy that epsilon would drop, see the bounce norms).
+    #[arg(long)]
+    bounce_epsilon: Option<f32>,
     /// Sender levels, the coarsest of the receiver levels (paper: 3).
     #[arg(long)]
     sender_levels: Option<u32>,
@@ -207,6 +211,7 @@ fn run_bake(args: BakeArgs) -> Result<()> {
         seed: args.seed,
         max_misses: args.max_misses,
         epsilon: args.epsilon,
+        bounce_epsilon: args.bounce_epsilon,
         sender_levels: args.sender_levels,
         bounces: args.bounces,
         gather_rays: args.gather_rays,

@@ -37,6 +37,8 @@ pub struct BakeOptions {
     pub max_misses: Option<u32>,
     /// Link threshold epsilon (paper: 0.025).
     pub epsilon: Option<f32>,
+    /// Truncation threshold of bounces 2 and later (default: epsilon, as the paper).
+    pub bounce_epsilon: Option<f32>,
     /// Sender levels (paper: 3; at most the receiver levels).
     pub sender_levels: Option<u32>,
     /// Most bounces of the Neumann series (paper: 4).
@@ -127,8 +129,10 @@ pub fn resolve_transport(
     scene: &BakeSettings,
     basis: &BasisParams,
 ) -> TransportParams {
+    let epsilon = opts.epsilon.or(scene.epsilon).unwrap_or(DEFAULT_EPSILON);
     TransportParams {
-        epsilon: opts.epsilon.or(scene.epsilon).unwrap_or(DEFAULT_EPSILON),
+        epsilon,
+        bounce_epsilon: opts.bounce_epsilon.unwrap_or(epsilon),
         sender_levels: opts
             .sender_levels
             .or(scene.sender_levels)

@@ -104,8 +104,19 @@ pub fn transport_table(t: &TransportMeta, timings: Option<&TransportTimings>) ->
     let mut o = String::new();
     let _ = writeln!(
         o,
-        "transport     epsilon {}  levels {}/{} (rcvr/sndr)  bounces {} (max {})  gather rays {}",
-        p.epsilon, p.receiver_levels, p.sender_levels, s.bounces, p.bounces, p.gather_rays
+        "transport     epsilon {} (bounces: {})  levels {}/{} (rcvr/sndr)  bounces {} (max {})  gather rays {}{}",
+        p.epsilon,
+        p.bounce_epsilon,
+        p.receiver_levels,
+        p.sender_levels,
+        s.bounces,
+        p.bounces,
+        p.gather_rays,
+        if p.bounces_on_all_receivers {
+            ", bounces on all receivers"
+        } else {
+            ""
+        }
     );
     let _ = writeln!(
         o,
@@ -133,11 +144,12 @@ pub fn transport_table(t: &TransportMeta, timings: Option<&TransportTimings>) ->
     let norms: Vec<String> = s
         .bounce_sum_norm
         .iter()
-        .map(|n| format!("{n:.3}"))
+        .zip(&s.bounce_kept_sum_norm)
+        .map(|(all, kept)| format!("{kept:.3} of {all:.3}"))
         .collect();
     let _ = writeln!(
         o,
-        "bounces       spectral radius {:.4}; sum of link norms per bounce: {}",
+        "bounces       spectral radius {:.4}; sum of link norms per bounce, kept of computed: {}",
         s.spectral_radius,
         norms.join(", ")
     );

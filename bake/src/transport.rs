@@ -31,6 +31,12 @@ pub fn check_params(p: &TransportParams, levels: u32) -> Result<(), BakeError> {
             p.epsilon
         ));
     }
+    if !(p.bounce_epsilon.is_finite() && p.bounce_epsilon >= 0.0) {
+        return bad(format!(
+            "the bounce epsilon must be finite and >= 0, got {}",
+            p.bounce_epsilon
+        ));
+    }
     if p.sender_levels == 0 || p.sender_levels > levels {
         return bad(format!(
             "sender levels must be 1..={levels} (the receiver levels), got {}",
@@ -119,7 +125,7 @@ pub fn compute_transport(
         &t,
         senders,
         params.bounces,
-        params.epsilon,
+        params.bounce_epsilon,
         bounce_receivers,
         |b, kept| {
             obs.done(

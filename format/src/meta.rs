@@ -165,6 +165,8 @@ data! {
     pub struct TransportParams {
         /// Link threshold epsilon (paper: 0.025).
         pub epsilon: f32,
+        /// Truncation threshold of bounces 2 and later (the paper: epsilon).
+        pub bounce_epsilon: f32,
         /// Sender levels (paper: 3) and receiver levels (paper: 6).
         pub sender_levels: u32,
         pub receiver_levels: u32,

@@ -253,3 +253,37 @@ fn refinement_adapts_to_corners_and_contacts_not_flat_walls() {
         "refinement does not favour corners: {near_share} vs {open_share}"
     );
 }
+
+#[test]
+fn a_smaller_bounce_epsilon_keeps_the_energy_that_truncation_drops() {
+    let bake = |bounce_epsilon: Option<f32>| {
+        let out = bake_with(
+            "builtin:cornell",
+            BakeOptions {
+                receiver_levels: Some(2),
+                coarse_count: Some(60),
+                sender_levels: Some(1),
+                gather_rays: Some(64),
+                bounce_epsilon,
+                ..Default::default()
+            },
+            2,
+        );
+        out.contents.transport.unwrap().meta.stats
+    };
+    let paper = bake(None);
+    let fine = bake(Some(1e-5));
+    // Same computed second bounce (same T), different truncation.
+    assert!(
+        (paper.bounce_sum_norm[1] - fine.bounce_sum_norm[1]).abs() < 1e-6 * fine.bounce_sum_norm[1]
+    );
+    let kept =
+        |s: &mlt_format::meta::TransportStats| s.bounce_kept_sum_norm[1] / s.bounce_sum_norm[1];
+    eprintln!(
+        "second bounce kept: {:.3} at epsilon, {:.3} at 1e-5",
+        kept(&paper),
+        kept(&fine)
+    );
+    assert!(kept(&fine) > 0.99 && kept(&fine) > kept(&paper));
+    assert!(fine.links > paper.links);
+}
