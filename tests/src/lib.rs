@@ -2,7 +2,26 @@
 
 use std::path::PathBuf;
 
+use glam::Vec3;
 use mlt_bake::{bake_scene, BakeOptions, BakeOutput, Silent};
+use mlt_scenes::RayCaster;
+
+/// Surface points (with shading normals facing `from`) hit by `n` rays from `from` in a
+/// golden-angle spiral of directions: query points independent of any basis.
+pub fn surface_samples(caster: &dyn RayCaster, from: Vec3, n: usize) -> Vec<(Vec3, Vec3)> {
+    let golden = std::f32::consts::PI * (3.0 - 5.0f32.sqrt());
+    (0..n)
+        .filter_map(|i| {
+            let z = 1.0 - 2.0 * (i as f32 + 0.5) / n as f32;
+            let r = (1.0 - z * z).sqrt();
+            let phi = golden * i as f32;
+            let d = Vec3::new(r * phi.cos(), z, r * phi.sin());
+            caster
+                .intersect(from, d, 0.0, f32::INFINITY)
+                .map(|h| (h.position, h.shading_normal))
+        })
+        .collect()
+}
 
 /// The `shared/` folder beside the repository (scenes, papers): `$MLT_SHARED` if set, else
 /// `../shared` relative to the workspace root.

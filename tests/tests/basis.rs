@@ -6,25 +6,7 @@ use mlt_format::kernel::poisson_distance;
 use mlt_format::pull_push::{project, pull_push};
 use mlt_format::shepard::MIN_WEIGHT_SUM;
 use mlt_format::{IndexedBasis, WriteOptions};
-use mlt_scenes::RayCaster;
-use mlt_tests::bake_small;
-
-/// Surface points (with normals facing the viewer) hit by rays from `from` in a spiral of
-/// directions: queries independent of the basis points.
-fn surface_samples(caster: &dyn RayCaster, from: Vec3, n: usize) -> Vec<(Vec3, Vec3)> {
-    let golden = std::f32::consts::PI * (3.0 - 5.0f32.sqrt());
-    (0..n)
-        .filter_map(|i| {
-            let z = 1.0 - 2.0 * (i as f32 + 0.5) / n as f32;
-            let r = (1.0 - z * z).sqrt();
-            let phi = golden * i as f32;
-            let d = Vec3::new(r * phi.cos(), z, r * phi.sin());
-            caster
-                .intersect(from, d, 0.0, f32::INFINITY)
-                .map(|h| (h.position, h.shading_normal))
-        })
-        .collect()
-}
+use mlt_tests::{bake_small, surface_samples};
 
 #[test]
 fn partition_of_unity_per_level_on_the_cornell_box() {

@@ -9,7 +9,7 @@ use mlt_format::pull_push::{project, pull_push};
 use mlt_format::shepard::MIN_WEIGHT_SUM;
 use mlt_format::{BakedFile, IndexedBasis, WriteOptions};
 use mlt_scenes::RayCaster;
-use mlt_tests::bake_with;
+use mlt_tests::{bake_with, surface_samples};
 
 type Link = [f32; LINK_DIM];
 
@@ -201,55 +201,27 @@ fn adaptive_s_matches_a_dense_brute_force_operator() {
         }
         i
     };
-    let points: Vec<(Vec3, Vec3)> = (0..300)
-        .filter_map(|k| {
-            let z = 1.0 - 2.0 * (k as f32 + 0.5) / 300.0;
-            let r = (1.0 - z * z).sqrt();
-            let phi = k as f32 * 2.39996;
-            let d = Vec3::new(r * phi.cos(), z, r * phi.sin());
-            caster
-                .intersect(Vec3::ZERO, d, 0.0, f32::INFINITY)
-                .map(|h| (h.position, h.shading_normal))
-        })
-        .collect();
+    let points = surface_samples(caster.as_ref(), Vec3::ZERO, 300);
 
     let mut i_adaptive = vec![0.0f32; ib.basis.len() * 9];
     links.apply(&e, 0.0, &mut i_adaptive);
     let adaptive = irradiance(&ib, &i_adaptive, &points);
-    let dense_a = irradiance(
-        &ib,
-        &apply_dense(&dense_s(
+    let dense = |seed| {
+        let tp = dense_t_prime(
             &ib,
-            &dense_t_prime(
-                &ib,
-                caster.as_ref(),
-                senders,
-                sender_levels as usize,
-                1024,
-                11,
-            ),
+            caster.as_ref(),
             senders,
-            bounces,
-        )),
-        &points,
-    );
-    let dense_b = irradiance(
-        &ib,
-        &apply_dense(&dense_s(
+            sender_levels as usize,
+            1024,
+            seed,
+        );
+        irradiance(
             &ib,
-            &dense_t_prime(
-                &ib,
-                caster.as_ref(),
-                senders,
-                sender_levels as usize,
-                1024,
-                23,
-            ),
-            senders,
-            bounces,
-        )),
-        &points,
-    );
+            &apply_dense(&dense_s(&ib, &tp, senders, bounces)),
+            &points,
+        )
+    };
+    let (dense_a, dense_b) = (dense(11), dense(23));
 
     let scale =
         (dense_a.iter().map(|v| (*v as f64).powi(2)).sum::<f64>() / dense_a.len() as f64).sqrt();

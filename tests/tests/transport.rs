@@ -4,24 +4,7 @@ use glam::Vec3;
 use mlt_bake::BakeOptions;
 use mlt_format::pull_push::pull_push;
 use mlt_format::{BakedFile, WriteOptions};
-use mlt_scenes::RayCaster;
-use mlt_tests::bake_with;
-
-/// Surface points hit by rays from `from` in a spiral of directions.
-fn surface_samples(caster: &dyn RayCaster, from: Vec3, n: usize) -> Vec<(Vec3, Vec3)> {
-    let golden = std::f32::consts::PI * (3.0 - 5.0f32.sqrt());
-    (0..n)
-        .filter_map(|i| {
-            let z = 1.0 - 2.0 * (i as f32 + 0.5) / n as f32;
-            let r = (1.0 - z * z).sqrt();
-            let phi = golden * i as f32;
-            let d = Vec3::new(r * phi.cos(), z, r * phi.sin());
-            caster
-                .intersect(from, d, 0.0, f32::INFINITY)
-                .map(|h| (h.position, h.shading_normal))
-        })
-        .collect()
-}
+use mlt_tests::{bake_with, surface_samples};
 
 /// Bakes the closed sphere, lights it with a point light of intensity 1 at the centre
 /// (direct irradiance I / R^2 everywhere), applies S from the written file and returns the
