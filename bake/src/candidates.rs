@@ -36,6 +36,8 @@ pub struct CandidatePool<'a> {
     pub particles: u64,
     /// Rays cast by those particles.
     pub rays: u64,
+    /// Rays that hit a surface (deposited or not).
+    pub hits: u64,
     /// Seconds spent tracing particles.
     pub seconds: f64,
     /// Particles per batch; doubles with each batch.
@@ -61,6 +63,7 @@ impl<'a> CandidatePool<'a> {
             candidates: Vec::new(),
             particles: 0,
             rays: 0,
+            hits: 0,
             seconds: 0.0,
             batch: 4096,
             limit: 200_000_000,
@@ -82,21 +85,24 @@ impl<'a> CandidatePool<'a> {
         // Each particle's path depends only on its index, and chunks are concatenated in
         // particle order: identical results for any thread count.
         const CHUNK: u64 = 1024;
-        let chunks: Vec<(Vec<Candidate>, u64)> = (0..n.div_ceil(CHUNK))
+        let chunks: Vec<(Vec<Candidate>, u64, u64)> = (0..n.div_ceil(CHUNK))
             .into_par_iter()
             .map(|c| {
                 let mut out = Vec::with_capacity(CHUNK as usize * bounces.saturating_sub(skipped));
-                let mut rays = 0u64;
+                let (mut rays, mut hits) = (0u64, 0u64);
                 for id in first + c * CHUNK..(first + (c + 1) * CHUNK).min(first + n) {
-                    rays += trace(caster, viewpoint, seed, id, bounces, skipped, &mut out);
+                    let (r, h) = trace(caster, viewpoint, seed, id, bounces, skipped, &mut out);
+                    rays += r;
+                    hits += h;
                 }
-                (out, rays)
+                (out, rays, hits)
             })
             .collect();
         let before = self.candidates.len();
-        for (c, rays) in chunks {
+        for (c, rays, hits) in chunks {
             self.candidates.extend_from_slice(&c);
             self.rays += rays;
+            self.hits += hits;
         }
         self.particles += n;
         self.seconds += start.elapsed().as_secs_f64();
@@ -104,7 +110,8 @@ impl<'a> CandidatePool<'a> {
     }
 }
 
-/// Traces particle `id`, appending its deposits to `out`; returns the rays cast.
+/// Traces particle `id`, appending its deposits to `out`; returns the rays cast and the rays
+/// that hit a surface.
 fn trace(
     caster: &dyn RayCaster,
     viewpoint: Vec3,
@@ -113,17 +120,18 @@ fn trace(
     bounces: usize,
     skipped: usize,
     out: &mut Vec<Candidate>,
-) -> u64 {
+) -> (u64, u64) {
     let mut rng = Rng::new(seed, Stream::Particle, id);
     let eps = caster.ray_epsilon();
     let mut origin = viewpoint;
     let mut dir = uniform_sphere(rng.next_f32(), rng.next_f32());
-    let mut rays = 0;
+    let (mut rays, mut hits) = (0, 0);
     for bounce in 0..bounces {
         rays += 1;
         let Some(hit) = caster.intersect(origin, dir, 0.0, f32::INFINITY) else {
             break;
         };
+        hits += 1;
         if bounce >= skipped {
             out.push(Candidate {
                 position: hit.position,
@@ -134,7 +142,7 @@ fn trace(
         origin = hit.position + hit.geometric_normal * eps;
         dir = cosine_hemisphere(hit.geometric_normal, rng.next_f32(), rng.next_f32());
     }
-    rays
+    (rays, hits)
 }
 
 #[cfg(test)]

@@ -9,6 +9,13 @@ pub enum BakeError {
     Scene(#[from] SceneError),
     #[error(transparent)]
     Format(#[from] FormatError),
+    #[error("{path}: {message}")]
+    Batch {
+        path: std::path::PathBuf,
+        message: String,
+    },
+    #[error("cannot merge the shards: {0}")]
+    Merge(String),
     #[error("invalid parameter: {0}")]
     InvalidParameter(String),
     #[error("{scene}: no importance particle from the viewpoint {viewpoint:?} reached a surface; is the viewpoint inside the scene?")]

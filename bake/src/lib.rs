@@ -6,6 +6,7 @@
 //!   distance test; [`placement`]: the hierarchy of levels and the `R_coarse` search;
 //! - [`pipeline`]: everything together, with statistics; [`report`]: human-readable output.
 
+pub mod batch;
 pub mod candidates;
 pub mod error;
 pub mod gather;
@@ -20,6 +21,7 @@ pub mod refine;
 pub mod report;
 pub mod rng;
 pub mod sampling;
+pub mod shard;
 pub mod table1;
 pub mod transport;
 

@@ -8,6 +8,7 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
+use mlt_bake::batch::{read_jobs, run_batch, stats_json, summary_markdown, BatchSettings};
 use mlt_bake::report::{bake_table, info_text, transport_table};
 use mlt_bake::table1::{compare_json, compare_text, our_row, paper_row, Table1Row};
 use mlt_bake::{bake_scene, BakeOptions, Observer};
@@ -25,6 +26,50 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Combines the shard files of `bake SCENE --shard I/N` (all N of them, any order) into
+    /// the file a single bake gives.
+    Merge {
+        #[arg(required = true)]
+        shards: Vec<PathBuf>,
+        #[arg(short, long)]
+        output: PathBuf,
+        /// zstd-compress the file's sections.
+        #[arg(long)]
+        compress: bool,
+        #[arg(short, long)]
+        quiet: bool,
+    },
+    /// Bakes every job of the given manifests (scene manifests, or batch manifests listing
+    /// [[job]] entries): NAME.mlt and NAME.json per job in --out-dir, and summary.json and
+    /// summary.md. Jobs whose outputs carry the same input key are skipped. Exits 1 when any
+    /// job failed, after all the others finished.
+    Batch {
+        #[arg(required = true)]
+        manifests: Vec<PathBuf>,
+        #[arg(long)]
+        out_dir: PathBuf,
+        /// Jobs baked at once (they share the threads).
+        #[arg(long, default_value_t = 1)]
+        jobs: usize,
+        /// Worker threads in all (default: all cores).
+        #[arg(long)]
+        threads: Option<usize>,
+        /// Bake even the jobs whose outputs are up to date.
+        #[arg(long)]
+        force: bool,
+        /// Store wall-clock timings in the files (they then differ from run to run).
+        #[arg(long)]
+        record_timings: bool,
+        /// zstd-compress the files' sections.
+        #[arg(long)]
+        compress: bool,
+        /// Print the summary as JSON instead of Markdown.
+        #[arg(long)]
+        json: bool,
+        /// No per-stage log lines; only warnings, errors and the summary.
+        #[arg(short, long)]
+        quiet: bool,
+    },
     /// Prints the paper's Table-1 columns for baked files (or --stats-json outputs), side by
     /// side; with --against, next to the paper's row or another bake, with ratios.
     Stats {
@@ -102,12 +147,18 @@ struct BakeArgs {
     /// Place the basis only; compute no transport operator.
     #[arg(long)]
     basis_only: bool,
+    /// Compute shard I of N of the transport (I from 0) into a shard file for `bake merge`.
+    #[arg(long, value_name = "I/N", value_parser = parse_shard)]
+    shard: Option<(u32, u32)>,
     /// Dart thrower's consecutive-miss limit (paper: 2000).
     #[arg(long)]
     max_misses: Option<u32>,
     /// Print only errors and the output path.
     #[arg(short, long)]
     quiet: bool,
+    /// Print the statistics JSON on standard output instead of the output path.
+    #[arg(long)]
+    json: bool,
 }
 
 /// Progress bars on a terminal, one log line per stage otherwise.
@@ -116,6 +167,8 @@ struct Reporter {
     quiet: bool,
     bar: Mutex<Option<ProgressBar>>,
     tty: bool,
+    /// Put before every line (the job's name in a batch).
+    prefix: String,
 }
 
 impl Reporter {
@@ -125,15 +178,17 @@ impl Reporter {
             quiet,
             bar: Mutex::new(None),
             tty: std::io::stderr().is_terminal(),
+            prefix: String::new(),
         }
     }
 
     fn line(&self, msg: &str) {
         if !self.quiet {
             let elapsed = self.start.elapsed().as_secs_f64();
+            let text = format!("[{elapsed:8.2}s] {}{msg}", self.prefix);
             match self.bar.lock().ok().and_then(|b| b.clone()) {
-                Some(bar) => bar.println(format!("[{elapsed:8.2}s] {msg}")),
-                None => eprintln!("[{elapsed:8.2}s] {msg}"),
+                Some(bar) => bar.println(text),
+                None => eprintln!("{text}"),
             }
         }
     }
@@ -141,7 +196,8 @@ impl Reporter {
 
 impl Observer for Reporter {
     fn stage(&self, name: &str) {
-        if self.quiet || !self.tty {
+        // Bars only for a single bake on a terminal; concurrent jobs log lines.
+        if self.quiet || !self.tty || !self.prefix.is_empty() {
             return;
         }
         let bar = ProgressBar::new_spinner().with_message(name.to_string());
@@ -176,8 +232,54 @@ impl Observer for Reporter {
 
     fn warn(&self, message: &str) {
         // Warnings show even with --quiet.
-        eprintln!("warning: {message}");
+        eprintln!("warning: {}{message}", self.prefix);
     }
+}
+
+fn parse_shard(s: &str) -> Result<(u32, u32), String> {
+    let (i, n) = s
+        .split_once('/')
+        .ok_or_else(|| format!("'{s}' is not I/N"))?;
+    let i: u32 = i
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{i}' is not a shard index"))?;
+    let n: u32 = n
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{n}' is not a shard count"))?;
+    if n == 0 || i >= n {
+        return Err(format!("shard {i}/{n}: need 0 <= I < N"));
+    }
+    Ok((i, n))
+}
+
+fn run_merge(shards: &[PathBuf], output: &Path, compress: bool, quiet: bool) -> Result<()> {
+    let mut contents = Vec::new();
+    for s in shards {
+        let f = BakedFile::open(s).with_context(|| format!("opening {}", s.display()))?;
+        contents.push(
+            f.contents()
+                .with_context(|| format!("reading {}", s.display()))?,
+        );
+    }
+    let reporter = Reporter::new(quiet);
+    let merged = mlt_bake::shard::merge(contents, &reporter).context("merging")?;
+    let size = mlt_format::file::write(output, &merged, WriteOptions { compress })
+        .with_context(|| format!("writing {}", output.display()))?;
+    if !quiet {
+        if let Some(t) = &merged.transport {
+            eprint!("{}", transport_table(&t.meta, None));
+        }
+        eprintln!(
+            "merged {} shards: {} ({:.2} MB)",
+            shards.len(),
+            output.display(),
+            size as f64 / 1e6
+        );
+    }
+    println!("{}", output.display());
+    Ok(())
 }
 
 fn default_output(spec: &str) -> PathBuf {
@@ -204,6 +306,11 @@ fn run_bake(args: BakeArgs) -> Result<()> {
     }
     let pool = builder.build().context("starting the worker threads")?;
     let reporter = Reporter::new(args.quiet);
+    let out_dir = match output.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    watch_for_interrupts(&out_dir);
     let opts = BakeOptions {
         receiver_levels: args.receiver_levels,
         coarse_count: args.coarse_count,
@@ -217,6 +324,7 @@ fn run_bake(args: BakeArgs) -> Result<()> {
         gather_rays: args.gather_rays,
         bounces_on_all_receivers: args.bounces_on_all_receivers,
         basis_only: args.basis_only,
+        shard: args.shard,
         record_timings: args.record_timings,
         compress: args.compress,
     };
@@ -263,24 +371,26 @@ fn run_bake(args: BakeArgs) -> Result<()> {
             );
         }
     }
+    let json = stats_json(&output, size, &out);
+    let text = serde_json::to_string_pretty(&json).context("formatting statistics")?;
     if let Some(path) = &args.stats_json {
-        let json = serde_json::json!({
-            "file": output.display().to_string(),
-            "file_bytes": size,
-            "meta": &out.contents.meta,
-            "timings": &out.timings,
-            "transport": out.contents.transport.as_ref().map(|t| {
-                let mut m = t.meta.clone();
-                m.timings = out.transport_timings.clone();
-                m
-            }),
-            "warnings": &out.warnings,
-        });
-        let text = serde_json::to_string_pretty(&json).context("formatting statistics")?;
         mlt_format::file::write_atomic(path, text.as_bytes())
             .with_context(|| format!("writing statistics to {}", path.display()))?;
     }
-    println!("{}", output.display());
+    if let (false, Some(s)) = (args.quiet, &out.contents.shard) {
+        eprintln!(
+            "shard {}/{}: {} receivers, {} links of T (combine all shards with `bake merge`)",
+            s.index,
+            s.count,
+            s.rows.len(),
+            s.senders.len()
+        );
+    }
+    if args.json {
+        println!("{text}");
+    } else {
+        println!("{}", output.display());
+    }
     Ok(())
 }
 
@@ -359,9 +469,119 @@ fn run_stats(files: &[PathBuf], against: Option<&str>, json: bool) -> Result<()>
     Ok(())
 }
 
+#[allow(clippy::too_many_arguments)]
+fn run_batch_command(
+    manifests: &[PathBuf],
+    out_dir: &Path,
+    jobs: usize,
+    threads: Option<usize>,
+    force: bool,
+    record_timings: bool,
+    compress: bool,
+    json: bool,
+    quiet: bool,
+) -> Result<()> {
+    let mut all = Vec::new();
+    for m in manifests {
+        all.extend(read_jobs(m).with_context(|| format!("reading {}", m.display()))?);
+    }
+    watch_for_interrupts(out_dir);
+    let settings = BatchSettings {
+        out_dir: out_dir.to_path_buf(),
+        jobs,
+        threads: threads.unwrap_or_else(|| {
+            std::thread::available_parallelism()
+                .map(|n| n.get())
+                .unwrap_or(1)
+        }),
+        record_timings,
+        compress,
+        force,
+    };
+    let start = Instant::now();
+    let observer = |name: &str| -> Box<dyn Observer> {
+        let mut r = Reporter::new(quiet);
+        r.start = start;
+        r.prefix = format!("{name}: ");
+        Box::new(r)
+    };
+    let summary = run_batch(&all, &settings, &observer).context("running the batch")?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+    } else {
+        print!("{}", summary_markdown(&summary));
+    }
+    if summary.failed > 0 {
+        let names: Vec<&str> = summary
+            .jobs
+            .iter()
+            .filter(|j| j.status == "failed")
+            .map(|j| j.name.as_str())
+            .collect();
+        eprintln!(
+            "error: {} of {} jobs failed: {}",
+            summary.failed,
+            summary.jobs.len(),
+            names.join(", ")
+        );
+        std::process::exit(1);
+    }
+    Ok(())
+}
+
+/// On Ctrl-C or SIGTERM, removes this process' temporary files in `dir` (outputs are written
+/// to `.NAME.tmpPID` and renamed into place, so a finished output is never partial and an
+/// unfinished one never appears) and exits with status 130.
+fn watch_for_interrupts(dir: &Path) {
+    let dir = dir.to_path_buf();
+    let suffix = format!(".tmp{}", std::process::id());
+    let result = ctrlc::set_handler(move || {
+        if let Ok(entries) = std::fs::read_dir(&dir) {
+            for e in entries.flatten() {
+                let name = e.file_name().to_string_lossy().into_owned();
+                if name.starts_with('.') && name.ends_with(&suffix) {
+                    let _ = std::fs::remove_file(e.path());
+                }
+            }
+        }
+        eprintln!("interrupted: no partial output left in {}", dir.display());
+        std::process::exit(130);
+    });
+    if let Err(e) = result {
+        eprintln!("warning: cannot watch for interrupts: {e}");
+    }
+}
+
 fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
+        Some(Command::Merge {
+            shards,
+            output,
+            compress,
+            quiet,
+        }) => run_merge(&shards, &output, compress, quiet),
+        Some(Command::Batch {
+            manifests,
+            out_dir,
+            jobs,
+            threads,
+            force,
+            record_timings,
+            compress,
+            json,
+            quiet,
+        }) => run_batch_command(
+            &manifests,
+            &out_dir,
+            jobs,
+            threads,
+            force,
+            record_timings,
+            compress,
+            json,
+            quiet,
+        ),
         Some(Command::Info { file, json }) => run_info(&file, json),
         Some(Command::Stats {
             files,

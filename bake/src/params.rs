@@ -49,6 +49,8 @@ pub struct BakeOptions {
     pub bounces_on_all_receivers: bool,
     /// Place the basis only; compute no transport operator.
     pub basis_only: bool,
+    /// Compute only shard `(index, count)` of T (a shard file for `bake merge`).
+    pub shard: Option<(u32, u32)>,
     /// Store wall-clock timings in the file (makes it differ from run to run).
     pub record_timings: bool,
     /// zstd-compress the file's sections.

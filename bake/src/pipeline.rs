@@ -16,7 +16,9 @@ use crate::observer::Observer;
 use crate::params::{resolve, resolve_transport, BakeOptions};
 use crate::placement::{find_coarse_radius, place, Coarse, LevelPlan};
 use crate::poisson::DartSettings;
-use crate::transport::{check_params, compute_transport};
+use crate::rng::mix64;
+use crate::shard::{needed, owners, shard_section};
+use crate::transport::{check_params, compute_transport, refine_t};
 
 /// The tool name and version recorded in files.
 pub fn tool_version() -> String {
@@ -32,6 +34,31 @@ pub struct BakeOutput {
     pub warnings: Vec<String>,
 }
 
+/// The input key of a bake: xxh3-64 of everything its file depends on: the tool version, the
+/// scene's identity and content hash (mesh, material and texture bytes, manifest), its default
+/// camera and light, and every resolved parameter. Equal keys mean byte-identical files.
+pub fn input_key(scene: &Scene, opts: &BakeOptions) -> Result<u64, BakeError> {
+    let (params, _) = resolve(opts, &scene.bake)?;
+    let transport = (!opts.basis_only).then(|| resolve_transport(opts, &scene.bake, &params));
+    let description = serde_json::json!({
+        "tool": tool_version(),
+        "format": [mlt_format::container::VERSION_MAJOR, mlt_format::container::VERSION_MINOR],
+        "source": scene.source,
+        "content_hash": scene.content_hash,
+        "scale": scene.scale,
+        "viewpoint": scene.viewpoint.to_array(),
+        "camera": scene.camera,
+        "light": scene.light,
+        "basis": params,
+        "transport": transport,
+        "record_timings": opts.record_timings,
+        "compress": opts.compress,
+    });
+    Ok(xxhash_rust::xxh3::xxh3_64(
+        description.to_string().as_bytes(),
+    ))
+}
+
 /// Bakes a loaded scene (in the current rayon pool; results do not depend on its size).
 pub fn bake_scene(
     scene: &Scene,
@@ -40,6 +67,14 @@ pub fn bake_scene(
 ) -> Result<BakeOutput, BakeError> {
     let t_total = Instant::now();
     let mut warnings = scene.warnings.clone();
+    let key = input_key(scene, opts)?;
+    if let Some((index, count)) = opts.shard {
+        if count == 0 || index >= count {
+            return Err(BakeError::InvalidParameter(format!(
+                "shard {index}/{count}: the index must be below the count"
+            )));
+        }
+    }
     let (mut params, coarse) = resolve(opts, &scene.bake)?;
     let transport_params = resolve_transport(opts, &scene.bake, &params);
     if !opts.basis_only {
@@ -75,10 +110,28 @@ pub fn bake_scene(
     // The first batch; the dart thrower grows the pool lazily from here.
     while pool.candidates.is_empty() {
         if pool.grow() == 0 && pool.particles >= 1 << 16 {
-            return Err(BakeError::NoCandidates {
-                scene: scene.source.clone(),
-                viewpoint: viewpoint.to_array(),
-            });
+            if pool.hits == 0 || params.skipped_bounces == 0 {
+                return Err(BakeError::NoCandidates {
+                    scene: scene.source.clone(),
+                    viewpoint: viewpoint.to_array(),
+                });
+            }
+            // An open scene (a single quad, say): particles reach surfaces but escape before
+            // the skipped bounces end. Deposit from the first hit instead, and say so.
+            let w = format!(
+                "no particle path survived the first {} bounces (an open scene?); candidates are deposited from the first bounce on",
+                params.skipped_bounces
+            );
+            obs.warn(&w);
+            warnings.push(w);
+            params.skipped_bounces = 0;
+            pool = CandidatePool::new(
+                caster.as_ref(),
+                viewpoint,
+                params.seed,
+                params.particle_bounces,
+                0,
+            );
         }
     }
     let first_batch_s = pool.seconds;
@@ -172,7 +225,22 @@ pub fn bake_scene(
 
     let mut transport = None;
     let mut transport_timings = None;
-    if !opts.basis_only {
+    let mut shard = None;
+    let mut file_key = key;
+    if let (false, Some((index, count))) = (opts.basis_only, opts.shard) {
+        let owner = owners(&ib, count);
+        let need = needed(&ib, &owner, index);
+        let (t, _, _) = refine_t(&ib, caster.as_ref(), &transport_params, Some(&need), obs);
+        shard = Some(shard_section(
+            &ib,
+            &t,
+            &owner,
+            (index, count),
+            key,
+            transport_params,
+        ));
+        file_key = mix64(key ^ mix64(((index as u64) << 32) | count as u64));
+    } else if !opts.basis_only {
         let out = compute_transport(&ib, caster.as_ref(), transport_params, obs)?;
         warnings.extend(out.warnings);
         let mut t = out.transport;
@@ -236,6 +304,8 @@ pub fn bake_scene(
             meta,
             basis: ib,
             transport,
+            input_key: file_key,
+            shard,
         },
         timings,
         transport_timings,

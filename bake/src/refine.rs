@@ -32,12 +32,14 @@ pub struct ReceiverLinks {
     pub offsets: Vec<u32>,
     pub senders: Vec<u32>,
     pub values: Vec<[f32; LINK_DIM]>,
+    /// Per row: gather hits where a sender level had no support.
+    pub unsupported: Vec<u64>,
 }
 
 pub const NONE: u32 = u32::MAX;
 
 impl ReceiverLinks {
-    fn new(receivers: usize) -> ReceiverLinks {
+    pub fn new(receivers: usize) -> ReceiverLinks {
         ReceiverLinks {
             row_of: vec![NONE; receivers],
             offsets: vec![0],
@@ -59,9 +61,11 @@ impl ReceiverLinks {
         }
     }
 
-    fn push_row(&mut self, receiver: u32, links: &[(u32, [f32; LINK_DIM])]) {
+    /// Appends the row of `receiver`.
+    pub fn push_row(&mut self, receiver: u32, links: &[(u32, [f32; LINK_DIM])], unsupported: u64) {
         self.row_of[receiver as usize] = self.rows.len() as u32;
         self.rows.push(receiver);
+        self.unsupported.push(unsupported);
         for (s, v) in links {
             self.senders.push(*s);
             self.values.push(*v);
@@ -98,13 +102,16 @@ struct Processed {
 }
 
 /// Computes T adaptively. `neighbors` and `children` are the basis' adjacency
-/// (see `mlt_format::adjacency`); `on_level(l, receivers, links)` reports progress.
+/// (see `mlt_format::adjacency`); `on_level(l, receivers, links)` reports progress. With
+/// `needed`, only the receivers marked there are processed (a shard: its own receivers and
+/// every coarser one they depend on, which makes their results those of the full run).
 pub fn refine(
     ib: &IndexedBasis,
     caster: &dyn RayCaster,
     neighbors: &Csr,
     children: &Csr,
     settings: &RefineSettings,
+    needed: Option<&[bool]>,
     mut on_level: impl FnMut(usize, usize, usize),
 ) -> (ReceiverLinks, RefineStats) {
     let b = &ib.basis;
@@ -115,6 +122,9 @@ pub fn refine(
     let mut stats = RefineStats::default();
     let mut queue: Vec<u32> = b.level_range(0).map(|i| i as u32).collect();
     for l in 0..b.levels() {
+        if let Some(needed) = needed {
+            queue.retain(|&i| needed[i as usize]);
+        }
         let done: Vec<Processed> = queue
             .par_iter()
             .map_init(
@@ -141,7 +151,7 @@ pub fn refine(
             stats.rays += p.counts.rays;
             stats.unsupported_hits += p.counts.unsupported;
             kept += p.links.len() as u64;
-            t.push_row(i, &p.links);
+            t.push_row(i, &p.links, p.counts.unsupported);
             if !p.links.is_empty() && l + 1 < b.levels() {
                 next.extend_from_slice(children.row(i as usize));
             }

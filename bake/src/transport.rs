@@ -12,7 +12,7 @@ use mlt_scenes::RayCaster;
 use crate::error::BakeError;
 use crate::neumann::{merge, series, spectral_radius, BounceReceivers, Row};
 use crate::observer::Observer;
-use crate::refine::{refine, RefineSettings};
+use crate::refine::{refine, ReceiverLinks, RefineSettings, RefineStats};
 
 /// The result, with what the user should be told.
 pub struct TransportOutput {
@@ -74,12 +74,19 @@ pub fn compute_transport(
     obs: &dyn Observer,
 ) -> Result<TransportOutput, BakeError> {
     check_params(&params, ib.levels() as u32)?;
-    let t_start = Instant::now();
-    let mut warnings = Vec::new();
-    let b = &ib.basis;
-    let senders = b.level_offsets[params.sender_levels as usize] as usize;
-    let receivers = b.len();
+    let (t, rstats, refine_s) = refine_t(ib, caster, &params, None, obs);
+    finish_transport(ib, t, rstats, params, refine_s, obs)
+}
 
+/// The refinement of T (optionally only of the receivers marked in `needed`, for a shard);
+/// returns T, its counts and the seconds it took.
+pub fn refine_t(
+    ib: &IndexedBasis,
+    caster: &dyn RayCaster,
+    params: &TransportParams,
+    needed: Option<&[bool]>,
+    obs: &dyn Observer,
+) -> (ReceiverLinks, RefineStats, f64) {
     obs.stage("refinement of T");
     let t0 = Instant::now();
     let nb = neighbors(ib);
@@ -91,7 +98,7 @@ pub fn compute_transport(
         seed: params.seed,
     };
     let levels = ib.levels();
-    let (t, rstats) = refine(ib, caster, &nb, &ch, &settings, |l, n, kept| {
+    let (t, rstats) = refine(ib, caster, &nb, &ch, &settings, needed, |l, n, kept| {
         obs.progress(l as u64 + 1, levels as u64);
         obs.done(
             &format!("receiver level {l}"),
@@ -105,7 +112,26 @@ pub fn compute_transport(
         refine_s,
         &format!("{} links, {} rays", t.link_count(), rstats.rays),
     );
+    (t, rstats, refine_s)
+}
 
+/// From T to the stored S: the spectral-radius check, the Neumann series, sender-major
+/// packing and the statistics. Deterministic in `t` and `rstats` (a merge of shards calls it
+/// with the shards' T and gets the single bake's S).
+pub fn finish_transport(
+    ib: &IndexedBasis,
+    t: ReceiverLinks,
+    rstats: RefineStats,
+    params: TransportParams,
+    refine_s: f64,
+    obs: &dyn Observer,
+) -> Result<TransportOutput, BakeError> {
+    let t_start = Instant::now();
+    let mut warnings = Vec::new();
+    let b = &ib.basis;
+    let levels = ib.levels();
+    let senders = b.level_offsets[params.sender_levels as usize] as usize;
+    let receivers = b.len();
     obs.stage("indirect bounces");
     let t1 = Instant::now();
     let rho = spectral_radius(ib, &t);
@@ -220,7 +246,7 @@ pub fn compute_transport(
     let timings = TransportTimings {
         refine_s,
         bounces_s,
-        total_s: t_start.elapsed().as_secs_f64(),
+        total_s: refine_s + t_start.elapsed().as_secs_f64(),
         peak_rss_bytes: peak_rss_bytes(),
         threads: rayon::current_num_threads() as u32,
     };

@@ -11,7 +11,9 @@
 //! 24       8    file length in bytes
 //! 32       8    xxh3-64 of the payload (bytes header_len..file_len)
 //! 40       8    xxh3-64 of the header with this field zeroed
-//! 48      16    reserved, 0
+//! 48       8    input key: xxh3-64 of everything the bake's result depends on (scene bytes,
+//!               parameters, tool version), 0 if unknown (since 1.2)
+//! 56       8    reserved, 0
 //! 64  32 * n    section table: tag [u8; 4], flags u32 (bit 0: zstd), offset u64,
 //!               stored length u64, raw (decompressed) length u64
 //! ```
@@ -30,7 +32,7 @@ use crate::error::FormatError;
 
 pub const MAGIC: [u8; 8] = *b"\x89MLTBK\r\n";
 pub const VERSION_MAJOR: u16 = 1;
-pub const VERSION_MINOR: u16 = 1;
+pub const VERSION_MINOR: u16 = 2;
 pub const FIXED_HEADER: usize = 64;
 pub const ENTRY_SIZE: usize = 32;
 pub const ALIGN: usize = 16;
@@ -66,9 +68,10 @@ fn align_up(x: usize) -> usize {
     x.div_ceil(ALIGN) * ALIGN
 }
 
-/// Serialises sections into a complete file image. Deterministic: the same sections give the
-/// same bytes (zstd at a fixed level, single-threaded).
-pub fn encode(sections: &[SectionIn<'_>]) -> Result<Vec<u8>, FormatError> {
+/// Serialises sections into a complete file image with `input_key` in the header.
+/// Deterministic: the same sections give the same bytes (zstd at a fixed level,
+/// single-threaded).
+pub fn encode(sections: &[SectionIn<'_>], input_key: u64) -> Result<Vec<u8>, FormatError> {
     let header_len = align_up(FIXED_HEADER + ENTRY_SIZE * sections.len());
     let mut out = vec![0u8; header_len];
     let mut entries = Vec::with_capacity(sections.len());
@@ -101,6 +104,7 @@ pub fn encode(sections: &[SectionIn<'_>]) -> Result<Vec<u8>, FormatError> {
     out[16..20].copy_from_slice(&(header_len as u32).to_le_bytes());
     out[20..24].copy_from_slice(&(sections.len() as u32).to_le_bytes());
     out[24..32].copy_from_slice(&file_len.to_le_bytes());
+    out[48..56].copy_from_slice(&input_key.to_le_bytes());
     for (i, e) in entries.iter().enumerate() {
         let o = FIXED_HEADER + i * ENTRY_SIZE;
         out[o..o + 4].copy_from_slice(&e.tag);
@@ -137,6 +141,8 @@ pub struct Header {
     pub header_len: usize,
     pub file_len: u64,
     pub payload_hash: u64,
+    /// The bake's input key (0 when unknown).
+    pub input_key: u64,
     pub sections: Vec<SectionEntry>,
 }
 
@@ -243,6 +249,7 @@ pub fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header, FormatError> {
         header_len,
         file_len,
         payload_hash,
+        input_key: u64_at(bytes, 48),
         sections,
     })
 }
@@ -303,7 +310,7 @@ mod tests {
     fn image(compress: bool) -> Vec<u8> {
         let a = vec![7u8; 1000];
         let b = b"hello".to_vec();
-        encode(&[
+        let sections = [
             SectionIn {
                 tag: *b"AAAA",
                 bytes: &a,
@@ -314,8 +321,8 @@ mod tests {
                 bytes: &b,
                 compress: false,
             },
-        ])
-        .unwrap()
+        ];
+        encode(&sections, 0x1234).unwrap()
     }
 
     #[test]
@@ -325,6 +332,7 @@ mod tests {
             let p = Path::new("t.mlt");
             let h = parse_header(p, &img).unwrap();
             assert_eq!(h.sections.len(), 2);
+            assert_eq!(h.input_key, 0x1234);
             for e in &h.sections {
                 assert_eq!(e.offset % 16, 0);
             }

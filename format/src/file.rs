@@ -16,6 +16,7 @@ use crate::error::FormatError;
 use crate::links::{ArchivedLinks, Links};
 use crate::meta::{Meta, TransportMeta};
 use crate::rtree::RTree;
+use crate::shard::ShardSection;
 use crate::shepard::IndexedBasis;
 
 /// Section tags of format 1.0.
@@ -25,6 +26,8 @@ pub const TAG_RTREES: [u8; 4] = *b"RTRE";
 /// Added in format 1.1: the transport operator S and how it was made.
 pub const TAG_TRANSPORT: [u8; 4] = *b"TRNS";
 pub const TAG_LINKS: [u8; 4] = *b"SLNK";
+/// A shard's share of T (shard files only).
+pub const TAG_SHARD: [u8; 4] = *b"TSHD";
 
 /// The R-trees of all levels, archived together.
 #[derive(Clone, Debug, Default, PartialEq, rkyv::Archive, rkyv::Serialize, rkyv::Deserialize)]
@@ -39,6 +42,11 @@ pub struct BakeContents {
     pub basis: IndexedBasis,
     /// The transport operator, when the bake computed one.
     pub transport: Option<Transport>,
+    /// xxh3-64 of everything the result depends on (scene bytes, parameters, tool version);
+    /// stored in the header so that build systems can tell an up-to-date output cheaply.
+    pub input_key: u64,
+    /// In a shard file: the shard's share of T.
+    pub shard: Option<ShardSection>,
 }
 
 /// The direct-to-indirect operator S with its parameters and statistics.
@@ -79,6 +87,10 @@ pub fn encode(contents: &BakeContents, opts: WriteOptions) -> Result<Vec<u8>, Fo
         sections.push((TAG_TRANSPORT, tm));
         sections.push((TAG_LINKS, links));
     }
+    if let Some(s) = &contents.shard {
+        let bytes = rkyv::to_bytes::<rancor::Error>(s).map_err(ser_err(TAG_SHARD))?;
+        sections.push((TAG_SHARD, bytes));
+    }
     let ins: Vec<SectionIn> = sections
         .iter()
         .map(|(tag, bytes)| SectionIn {
@@ -87,7 +99,7 @@ pub fn encode(contents: &BakeContents, opts: WriteOptions) -> Result<Vec<u8>, Fo
             compress: opts.compress,
         })
         .collect();
-    container::encode(&ins)
+    container::encode(&ins, contents.input_key)
 }
 
 /// Bytes each section of `contents` takes uncompressed, by tag (for statistics).
@@ -262,6 +274,22 @@ impl BakedFile {
         self.section::<TransportMeta>(TAG_TRANSPORT).map(Some)
     }
 
+    /// The `TSHD` section of a shard file, validated against the basis' size.
+    pub fn shard(&self) -> Result<Option<ShardSection>, FormatError> {
+        if !self.has_section(TAG_SHARD) {
+            return Ok(None);
+        }
+        let s = self.section::<ShardSection>(TAG_SHARD)?;
+        let b = self.section::<Basis>(TAG_BASIS)?;
+        s.validate(b.len(), b.levels())
+            .map_err(|detail| FormatError::BadSection {
+                path: self.path.clone(),
+                tag: "TSHD".into(),
+                detail,
+            })?;
+        Ok(Some(s))
+    }
+
     /// The bytes of the `SLNK` section, if present: borrowed from the mapping when stored
     /// uncompressed. Pass them to [`access_links`] for zero-copy, validated access.
     pub fn links_bytes(&self) -> Result<Option<SectionBytes<'_>>, FormatError> {
@@ -285,6 +313,8 @@ impl BakedFile {
             meta: self.meta()?,
             basis: self.basis()?,
             transport,
+            input_key: self.header.input_key,
+            shard: self.shard()?,
         })
     }
 
@@ -324,6 +354,7 @@ impl BakedFile {
         Ok(FileInfo {
             path: self.path.display().to_string(),
             format_version: format!("{}.{}", self.header.major, self.header.minor),
+            input_key: format!("{:016x}", self.header.input_key),
             file_bytes: self.header.file_len,
             sections: self
                 .header
@@ -350,6 +381,7 @@ impl BakedFile {
 pub struct FileInfo {
     pub path: String,
     pub format_version: String,
+    pub input_key: String,
     pub file_bytes: u64,
     pub sections: Vec<SectionInfo>,
     pub points: u64,

@@ -21,6 +21,7 @@ pub mod links;
 pub mod meta;
 pub mod pull_push;
 pub mod rtree;
+pub mod shard;
 pub mod shepard;
 
 pub use basis::Basis;

@@ -1,0 +1,225 @@
+//! Scale-out on an existing scheduler: `bake SCENE --shard I/N` computes T for one
+//! deterministic share of the receivers, and `bake merge` combines the shards into the file a
+//! single bake gives, byte for byte.
+//!
+//! Ownership: the coarsest receivers are split into `N` contiguous runs of a Morton (Z-order)
+//! sort of their positions, so that a shard's region is compact; every finer receiver belongs
+//! to the shard of its primary parent (the coarser-level function with the largest weight at
+//! it; ties to the lower index; a point without parent falls to `index mod N`). A shard
+//! processes the receivers it owns and, recomputed locally, every coarser receiver they
+//! depend on: Eq. 17 reads the links of all coarser functions non-zero at a receiver, and the
+//! refinement queue of a level depends on the previous level's results. Each receiver's result
+//! depends only on its index, the seed and those coarser results, so the recomputed ones equal
+//! the single bake's and the owned rows of all shards add up to its T exactly.
+
+use mlt_format::links::LINK_DIM;
+use mlt_format::shard::ShardSection;
+use mlt_format::{BakeContents, IndexedBasis};
+
+use crate::error::BakeError;
+use crate::observer::Observer;
+use crate::refine::{ReceiverLinks, RefineStats};
+use crate::transport::finish_transport;
+
+/// Spreads the bits of a 10-bit integer three apart.
+fn spread(mut x: u32) -> u32 {
+    x &= 0x3ff;
+    x = (x | (x << 16)) & 0x030000ff;
+    x = (x | (x << 8)) & 0x0300f00f;
+    x = (x | (x << 4)) & 0x030c30c3;
+    (x | (x << 2)) & 0x09249249
+}
+
+/// The shard owning each point.
+pub fn owners(ib: &IndexedBasis, count: u32) -> Vec<u32> {
+    let b = &ib.basis;
+    let mut owner = vec![0u32; b.len()];
+    // Level 0: contiguous runs of the Morton order.
+    let l0 = b.level_range(0);
+    let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    for j in l0.clone() {
+        for a in 0..3 {
+            lo[a] = lo[a].min(b.positions[j][a]);
+            hi[a] = hi[a].max(b.positions[j][a]);
+        }
+    }
+    let code = |p: [f32; 3]| {
+        let q = |a: usize| {
+            let ext = (hi[a] - lo[a]).max(f32::MIN_POSITIVE);
+            (((p[a] - lo[a]) / ext).clamp(0.0, 1.0) * 1023.0) as u32
+        };
+        spread(q(0)) | (spread(q(1)) << 1) | (spread(q(2)) << 2)
+    };
+    let mut order: Vec<(u32, usize)> = l0.clone().map(|j| (code(b.positions[j]), j)).collect();
+    order.sort_unstable();
+    let n0 = order.len().max(1);
+    for (rank, &(_, j)) in order.iter().enumerate() {
+        owner[j] = (rank * count as usize / n0) as u32;
+    }
+    // Finer levels: the primary parent's shard.
+    for l in 1..b.levels() {
+        for i in b.level_range(l) {
+            let mut best: Option<(f32, usize)> = None;
+            ib.for_each_weight(l - 1, b.positions[i], b.normals[i], |k, w| {
+                if best.is_none_or(|(bw, bk)| w > bw || (w == bw && k < bk)) {
+                    best = Some((w, k));
+                }
+            });
+            owner[i] = match best {
+                Some((_, k)) => owner[k],
+                None => i as u32 % count,
+            };
+        }
+    }
+    owner
+}
+
+/// The receivers shard `index` must process: those it owns and, transitively, every coarser
+/// function non-zero at one of them.
+pub fn needed(ib: &IndexedBasis, owner: &[u32], index: u32) -> Vec<bool> {
+    let b = &ib.basis;
+    let mut need: Vec<bool> = owner.iter().map(|&o| o == index).collect();
+    for l in (1..b.levels()).rev() {
+        for i in b.level_range(l) {
+            if !need[i] {
+                continue;
+            }
+            for m in 0..l {
+                ib.for_each_weight(m, b.positions[i], b.normals[i], |k, _| need[k] = true);
+            }
+        }
+    }
+    need
+}
+
+/// Packs the owned rows of a shard's T.
+pub fn shard_section(
+    ib: &IndexedBasis,
+    t: &ReceiverLinks,
+    owner: &[u32],
+    (index, count): (u32, u32),
+    base_key: u64,
+    params: mlt_format::meta::TransportParams,
+) -> ShardSection {
+    let rays_per_receiver = params.gather_rays as u64;
+    let levels = ib.levels();
+    let mut s = ShardSection {
+        base_key,
+        index,
+        count,
+        params,
+        offsets: vec![0],
+        receivers_refined: vec![0; levels],
+        t_links_per_level: vec![0; levels],
+        ..Default::default()
+    };
+    let mut owned: Vec<(u32, usize)> = t
+        .rows
+        .iter()
+        .enumerate()
+        .filter(|(_, &r)| owner[r as usize] == index)
+        .map(|(row, &r)| (r, row))
+        .collect();
+    owned.sort_unstable();
+    for (r, row) in owned {
+        let (a, e) = (t.offsets[row] as usize, t.offsets[row + 1] as usize);
+        let l = ib.basis.level_of(r as usize);
+        s.receivers_refined[l] += 1;
+        s.t_links_per_level[l] += (e - a) as u64;
+        s.rays += rays_per_receiver;
+        s.unsupported_hits += t.unsupported[row];
+        s.rows.push(r);
+        s.senders.extend_from_slice(&t.senders[a..e]);
+        for v in &t.values[a..e] {
+            s.values.extend_from_slice(v);
+        }
+        s.offsets.push(s.senders.len() as u32);
+    }
+    s
+}
+
+/// Combines shard files into the contents a single bake gives.
+pub fn merge(shards: Vec<BakeContents>, obs: &dyn Observer) -> Result<BakeContents, BakeError> {
+    let bad = |m: String| Err(BakeError::Merge(m));
+    let Some(first) = shards.first() else {
+        return bad("no shards given".into());
+    };
+    let Some(s0) = &first.shard else {
+        return bad("the first file is not a shard (no TSHD section)".into());
+    };
+    let count = s0.count as usize;
+    if shards.len() != count {
+        return bad(format!(
+            "{} shards given, the first says there are {count}",
+            shards.len()
+        ));
+    }
+    let mut seen = vec![false; count];
+    for c in &shards {
+        let Some(s) = &c.shard else {
+            return bad("a file is not a shard (no TSHD section)".into());
+        };
+        if s.count as usize != count || s.base_key != s0.base_key || s.params != s0.params {
+            return bad(format!(
+                "shard {}/{} belongs to another bake (input key {:016x}, expected {:016x})",
+                s.index, s.count, s.base_key, s0.base_key
+            ));
+        }
+        if c.meta != first.meta || c.basis != first.basis {
+            return bad(format!("shard {}/{} has another basis", s.index, s.count));
+        }
+        if std::mem::replace(&mut seen[s.index as usize], true) {
+            return bad(format!("shard {}/{} is given twice", s.index, s.count));
+        }
+    }
+    let ib = &first.basis;
+    let levels = ib.levels();
+    // T: every owned row, in receiver order (levels are contiguous index ranges, so this is
+    // the single bake's level-by-level order).
+    let mut rows: Vec<(u32, usize, usize)> = Vec::new();
+    let mut rstats = RefineStats {
+        receivers_refined: vec![0; levels],
+        links_per_level: vec![0; levels],
+        ..Default::default()
+    };
+    for (k, c) in shards.iter().enumerate() {
+        let Some(s) = &c.shard else { continue };
+        for (row, &r) in s.rows.iter().enumerate() {
+            rows.push((r, k, row));
+        }
+        for l in 0..levels {
+            rstats.receivers_refined[l] += s.receivers_refined[l];
+            rstats.links_per_level[l] += s.t_links_per_level[l];
+        }
+        rstats.rays += s.rays;
+        rstats.unsupported_hits += s.unsupported_hits;
+    }
+    rows.sort_unstable();
+    if rows.windows(2).any(|w| w[0].0 == w[1].0) {
+        return bad("two shards hold the same receiver".into());
+    }
+    let mut t = ReceiverLinks::new(ib.basis.len());
+    let mut links = Vec::new();
+    for (r, k, row) in rows {
+        let Some(s) = &shards[k].shard else { continue };
+        let (a, e) = (s.offsets[row] as usize, s.offsets[row + 1] as usize);
+        links.clear();
+        for j in a..e {
+            let mut v = [0.0f32; LINK_DIM];
+            v.copy_from_slice(&s.values[j * LINK_DIM..(j + 1) * LINK_DIM]);
+            links.push((s.senders[j], v));
+        }
+        // Per-row unsupported counts are only needed by shards; the totals are in rstats.
+        t.push_row(r, &links, 0);
+    }
+    let out = finish_transport(ib, t, rstats, s0.params.clone(), 0.0, obs)?;
+    let mut transport = out.transport;
+    transport.meta.timings = None;
+    Ok(BakeContents {
+        meta: first.meta.clone(),
+        basis: first.basis.clone(),
+        transport: Some(transport),
+        input_key: s0.base_key,
+        shard: None,
+    })
+}

@@ -1,0 +1,287 @@
+//! `bake` in build pipelines: batch mode, incremental skips, determinism, shards and merge,
+//! interrupts.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn bake() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_bake"))
+}
+
+fn temp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("mlt-pipe-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn run(cmd: &mut Command) -> std::process::Output {
+    let out = cmd.output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+const SMALL: [&str; 6] = [
+    "--receiver-levels",
+    "3",
+    "--coarse-count",
+    "30",
+    "--gather-rays",
+    "64",
+];
+
+#[test]
+fn batch_bakes_reports_failures_and_skips_what_is_up_to_date() {
+    let d = temp("batch");
+    let manifest = d.join("jobs.toml");
+    std::fs::write(
+        &manifest,
+        r#"
+[[job]]
+name = "box"
+scene = "builtin:box?albedo=0.7"
+receiver_levels = 2
+coarse_count = 20
+gather_rays = 64
+
+[[job]]
+name = "divergent"
+scene = "builtin:sphere?albedo=1.5"
+receiver_levels = 2
+coarse_count = 10
+epsilon = 0.00001
+
+[[job]]
+name = "cornell"
+scene = "builtin:cornell"
+receiver_levels = 2
+coarse_count = 20
+gather_rays = 64
+"#,
+    )
+    .unwrap();
+    let out_dir = d.join("out");
+    let r = bake()
+        .arg("batch")
+        .arg(&manifest)
+        .arg("--out-dir")
+        .arg(&out_dir)
+        .args(["--jobs", "2", "--json"])
+        .output()
+        .unwrap();
+    // One job failed: non-zero exit, after the others finished.
+    assert_eq!(
+        r.status.code(),
+        Some(1),
+        "{}",
+        String::from_utf8_lossy(&r.stderr)
+    );
+    let summary: serde_json::Value = serde_json::from_slice(&r.stdout).unwrap();
+    assert_eq!(
+        (summary["baked"].as_u64(), summary["failed"].as_u64()),
+        (Some(2), Some(1))
+    );
+    let jobs = summary["jobs"].as_array().unwrap();
+    let failed = jobs.iter().find(|j| j["status"] == "failed").unwrap();
+    assert_eq!(failed["name"], "divergent");
+    assert!(failed["error"]
+        .as_str()
+        .unwrap()
+        .contains("spectral radius"));
+    for name in ["box", "cornell"] {
+        assert!(out_dir.join(format!("{name}.mlt")).is_file());
+        let stats: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(out_dir.join(format!("{name}.json"))).unwrap(),
+        )
+        .unwrap();
+        assert!(stats["transport"]["stats"]["links"].as_u64().is_some());
+    }
+    assert!(!out_dir.join("divergent.mlt").exists());
+    let md = std::fs::read_to_string(out_dir.join("summary.md")).unwrap();
+    assert!(
+        md.contains("| divergent | failed |") && md.contains("| box | baked |"),
+        "{md}"
+    );
+
+    // Again: the two good outputs are up to date and skipped, untouched.
+    let before = std::fs::metadata(out_dir.join("box.mlt"))
+        .unwrap()
+        .modified()
+        .unwrap();
+    let r = bake()
+        .arg("batch")
+        .arg(&manifest)
+        .arg("--out-dir")
+        .arg(&out_dir)
+        .args(["--json", "-q"])
+        .output()
+        .unwrap();
+    let summary: serde_json::Value = serde_json::from_slice(&r.stdout).unwrap();
+    assert_eq!(summary["skipped"].as_u64(), Some(2));
+    assert_eq!(
+        std::fs::metadata(out_dir.join("box.mlt"))
+            .unwrap()
+            .modified()
+            .unwrap(),
+        before
+    );
+    // The key in the header is the one the summary reports.
+    let info = run(bake()
+        .arg("info")
+        .arg(out_dir.join("box.mlt"))
+        .arg("--json"));
+    let info: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    let job = summary["jobs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|j| j["name"] == "box")
+        .unwrap();
+    assert_eq!(info["input_key"], job["input_key"]);
+
+    // A changed parameter changes the key: that job is baked again, the other skipped.
+    let text = std::fs::read_to_string(&manifest).unwrap().replacen(
+        "gather_rays = 64",
+        "gather_rays = 32",
+        1,
+    );
+    std::fs::write(&manifest, text).unwrap();
+    let r = bake()
+        .arg("batch")
+        .arg(&manifest)
+        .arg("--out-dir")
+        .arg(&out_dir)
+        .args(["--json", "-q"])
+        .output()
+        .unwrap();
+    let summary: serde_json::Value = serde_json::from_slice(&r.stdout).unwrap();
+    let status = |n: &str| {
+        summary["jobs"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|j| j["name"] == n)
+            .unwrap()["status"]
+            .clone()
+    };
+    assert_eq!(
+        (status("box"), status("cornell")),
+        ("baked".into(), "skipped".into())
+    );
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+fn bytes_of(d: &Path, scene: &str, threads: &str, name: &str) -> Vec<u8> {
+    let f = d.join(name);
+    run(bake()
+        .arg(scene)
+        .args(SMALL)
+        .args(["--threads", threads, "-q", "-o"])
+        .arg(&f));
+    std::fs::read(&f).unwrap()
+}
+
+#[test]
+fn outputs_are_byte_identical_across_runs_and_thread_counts() {
+    let d = temp("determinism");
+    for scene in ["builtin:cornell", "builtin:box?albedo=0.6"] {
+        let a = bytes_of(&d, scene, "1", "a.mlt");
+        let b = bytes_of(&d, scene, "2", "b.mlt");
+        let c = bytes_of(&d, scene, "2", "c.mlt");
+        assert!(a == b && b == c, "{scene}: outputs differ");
+    }
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+#[test]
+fn merged_shards_equal_the_single_bake_for_one_two_and_three_shards() {
+    let d = temp("shards");
+    let full = d.join("full.mlt");
+    run(bake()
+        .arg("builtin:cornell")
+        .args(SMALL)
+        .args(["-q", "-o"])
+        .arg(&full));
+    let expected = std::fs::read(&full).unwrap();
+    for n in 1..=3u32 {
+        let mut files = Vec::new();
+        for i in 0..n {
+            let f = d.join(format!("s{i}of{n}.mlt"));
+            run(bake()
+                .arg("builtin:cornell")
+                .args(SMALL)
+                .args(["--shard", &format!("{i}/{n}"), "-q", "-o"])
+                .arg(&f));
+            files.push(f);
+        }
+        files.reverse(); // any order
+        let merged = d.join(format!("merged{n}.mlt"));
+        run(bake()
+            .arg("merge")
+            .args(&files)
+            .arg("-o")
+            .arg(&merged)
+            .arg("-q"));
+        assert!(
+            std::fs::read(&merged).unwrap() == expected,
+            "{n} shards: the merge differs from the single bake"
+        );
+    }
+    // Incomplete or mixed sets are refused.
+    let r = bake()
+        .arg("merge")
+        .arg(d.join("s0of2.mlt"))
+        .arg("-o")
+        .arg(d.join("x.mlt"))
+        .output()
+        .unwrap();
+    assert!(!r.status.success());
+    assert!(String::from_utf8_lossy(&r.stderr).contains("1 shards given"));
+    let r = bake()
+        .arg("merge")
+        .arg(d.join("s0of2.mlt"))
+        .arg(d.join("s0of2.mlt"))
+        .arg("-o")
+        .arg(d.join("x.mlt"))
+        .output()
+        .unwrap();
+    assert!(String::from_utf8_lossy(&r.stderr).contains("twice"));
+    let r = bake()
+        .args(["builtin:cornell", "--shard", "3/3", "-o"])
+        .arg(d.join("x.mlt"))
+        .output()
+        .unwrap();
+    assert!(!r.status.success());
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+#[test]
+fn an_interrupt_leaves_no_partial_or_temporary_file() {
+    let d = temp("interrupt");
+    let out = d.join("cornell.mlt");
+    std::fs::write(&out, b"previous").unwrap();
+    // A bake long enough to be interrupted mid-way.
+    let mut child = bake()
+        .args(["builtin:cornell", "--receiver-levels", "6", "-q", "-o"])
+        .arg(&out)
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let pid = child.id().to_string();
+    let killed = Command::new("kill").args(["-INT", &pid]).status().unwrap();
+    assert!(killed.success());
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(130));
+    assert_eq!(std::fs::read(&out).unwrap(), b"previous");
+    let leftovers: Vec<_> = std::fs::read_dir(&d)
+        .unwrap()
+        .flatten()
+        .filter(|e| e.file_name() != "cornell.mlt")
+        .collect();
+    assert!(leftovers.is_empty(), "{leftovers:?}");
+    let _ = std::fs::remove_dir_all(&d);
+}

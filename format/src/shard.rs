@@ -1,0 +1,57 @@
+//! The `TSHD` section of a shard file: one share of the single-bounce operator T, computed by
+//! `bake SCENE --shard I/N`, to be combined by `bake merge` into the file a single bake gives.
+
+use crate::links::LINK_DIM;
+use crate::meta::TransportParams;
+
+/// A shard's rows of T (full precision) and its share of the refinement's counts.
+#[derive(Clone, Debug, Default, PartialEq, rkyv::Archive, rkyv::Serialize, rkyv::Deserialize)]
+pub struct ShardSection {
+    /// The input key of the complete bake the shards add up to.
+    pub base_key: u64,
+    pub index: u32,
+    pub count: u32,
+    pub params: TransportParams,
+    /// Receivers this shard owns and processed, ascending.
+    pub rows: Vec<u32>,
+    /// `rows.len() + 1` offsets into `senders`.
+    pub offsets: Vec<u32>,
+    pub senders: Vec<u32>,
+    /// `LINK_DIM` floats per link.
+    pub values: Vec<f32>,
+    /// Per receiver level, over the owned receivers: receivers processed and links kept.
+    pub receivers_refined: Vec<u64>,
+    pub t_links_per_level: Vec<u64>,
+    pub rays: u64,
+    pub unsupported_hits: u64,
+}
+
+impl ShardSection {
+    /// Checks the invariants a merge relies on against a basis of `points` points and
+    /// `levels` levels.
+    pub fn validate(&self, points: usize, levels: usize) -> Result<(), String> {
+        if self.count == 0 || self.index >= self.count {
+            return Err(format!(
+                "shard {}/{} is not a valid share",
+                self.index, self.count
+            ));
+        }
+        if self.offsets.len() != self.rows.len() + 1
+            || self.offsets.first() != Some(&0)
+            || self.offsets.windows(2).any(|w| w[0] > w[1])
+            || self.offsets.last().map(|&o| o as usize) != Some(self.senders.len())
+            || self.values.len() != self.senders.len() * LINK_DIM
+        {
+            return Err("row arrays are inconsistent".into());
+        }
+        if self.rows.windows(2).any(|w| w[0] >= w[1])
+            || self.rows.iter().any(|&r| r as usize >= points)
+        {
+            return Err("rows are not ascending receiver indices".into());
+        }
+        if self.receivers_refined.len() != levels || self.t_links_per_level.len() != levels {
+            return Err("per-level counts do not match the levels".into());
+        }
+        Ok(())
+    }
+}
