@@ -67,7 +67,12 @@ fn bakes_a_builtin_writes_stats_and_reports_info() {
     let r = bake().arg("info").arg(&out).arg("--json").output().unwrap();
     assert!(r.status.success());
     let info: serde_json::Value = serde_json::from_slice(&r.stdout).unwrap();
-    assert_eq!(info["format_version"], "1.1");
+    let version = format!(
+        "{}.{}",
+        mlt_format::container::VERSION_MAJOR,
+        mlt_format::container::VERSION_MINOR
+    );
+    assert_eq!(info["format_version"], version.as_str());
     assert_eq!(info["meta"]["scene"]["source"], "builtin:cornell");
     let total: u64 = info["levels"]
         .as_array()
