@@ -22,7 +22,7 @@ pub fn project(ib: &IndexedBasis, samples: &[f32], dim: usize) -> (Vec<f32>, Pro
     assert!(dim <= MAX_DIM && samples.len() == ib.basis.len() * dim);
     let mut alpha = samples.to_vec();
     let mut report = ProjectionReport::default();
-    push_levels(ib, &mut alpha, dim, &mut report);
+    push_levels(ib, &mut alpha, dim, ib.basis.levels(), &mut report);
     (alpha, report)
 }
 
@@ -34,11 +34,22 @@ pub fn project(ib: &IndexedBasis, samples: &[f32], dim: usize) -> (Vec<f32>, Pro
 /// For a constant function every `f'` is that constant, so the coarsest level reproduces it
 /// exactly and all finer coefficients vanish wherever a coarser level has support.
 pub fn pull_push(ib: &IndexedBasis, samples: &[f32], dim: usize) -> (Vec<f32>, ProjectionReport) {
-    assert!(dim <= MAX_DIM && samples.len() == ib.basis.len() * dim);
+    pull_push_levels(ib, samples, dim, ib.basis.levels())
+}
+
+/// [`pull_push`] on the coarsest `levels` levels only (the senders): `samples` holds `dim`
+/// values for each of their points, and so does the result.
+pub fn pull_push_levels(
+    ib: &IndexedBasis,
+    samples: &[f32],
+    dim: usize,
+    levels: usize,
+) -> (Vec<f32>, ProjectionReport) {
     let b = &ib.basis;
+    let levels = levels.min(b.levels());
+    assert!(dim <= MAX_DIM && samples.len() == b.level_offsets[levels] as usize * dim);
     let mut values = samples.to_vec();
     let mut report = ProjectionReport::default();
-    let levels = b.levels();
     let mut num = Vec::new();
     let mut den = Vec::new();
     for l in (0..levels.saturating_sub(1)).rev() {
@@ -69,16 +80,22 @@ pub fn pull_push(ib: &IndexedBasis, samples: &[f32], dim: usize) -> (Vec<f32>, P
             }
         }
     }
-    push_levels(ib, &mut values, dim, &mut report);
+    push_levels(ib, &mut values, dim, levels, &mut report);
     (values, report)
 }
 
 /// In place: turns values `f_j` into the coefficients of Eq. 7, coarse to fine, since
 /// `F_{l-1}` needs the final coefficients of all levels `< l`. Level 0 stays as is.
-fn push_levels(ib: &IndexedBasis, values: &mut [f32], dim: usize, report: &mut ProjectionReport) {
+fn push_levels(
+    ib: &IndexedBasis,
+    values: &mut [f32],
+    dim: usize,
+    levels: usize,
+    report: &mut ProjectionReport,
+) {
     let b = &ib.basis;
     let mut approx = [0.0f32; MAX_DIM];
-    for l in 1..b.levels() {
+    for l in 1..levels {
         for j in b.level_range(l) {
             let s = ib.reconstruct(values, dim, 0..l, b.positions[j], b.normals[j], &mut approx);
             if s.supported == 0 {

@@ -110,7 +110,8 @@ impl IndexedBasis {
 
     /// Evaluates `sum_j alpha_j B_j(x, n)` over the levels `levels` (Eq. 6; with `0..L` the
     /// full hierarchical expansion, with `0..l` the approximation `F_{l-1}` of Eq. 7).
-    /// `alpha` holds `dim` floats per point; the result is written to `out[..dim]`.
+    /// `alpha` holds `dim` floats per point (at least for the points of `levels`); the result
+    /// is written to `out[..dim]`.
     pub fn reconstruct(
         &self,
         alpha: &[f32],
@@ -120,7 +121,10 @@ impl IndexedBasis {
         n: [f32; 3],
         out: &mut [f32],
     ) -> Support {
-        assert!(dim <= MAX_DIM && out.len() >= dim && alpha.len() >= self.basis.len() * dim);
+        // `alpha` must cover the points of the levels evaluated (the senders' coefficients,
+        // say, cover only the coarsest levels).
+        let covered = self.basis.level_offsets[levels.end.min(self.levels())] as usize;
+        assert!(dim <= MAX_DIM && out.len() >= dim && alpha.len() >= covered * dim);
         out[..dim].fill(0.0);
         let mut support = Support::default();
         let mut acc = [0.0f32; MAX_DIM];
