@@ -7,20 +7,21 @@
 
 use crate::shepard::{IndexedBasis, Support, MAX_DIM, MIN_WEIGHT_SUM};
 
-/// Flat coefficients `c_j = F_L(p_j)` for every point, `dim` floats each.
+/// Flat coefficients `c_j = F_L(p_j)` for every point, `dim` floats each. Points are
+/// independent, so they are computed in parallel (in the current rayon pool) with the same
+/// result for any thread count.
 pub fn flatten(ib: &IndexedBasis, alpha: &[f32], dim: usize) -> Vec<f32> {
+    use rayon::prelude::*;
     let b = &ib.basis;
     let mut flat = vec![0.0f32; b.len() * dim];
-    for j in 0..b.len() {
-        ib.reconstruct(
-            alpha,
-            dim,
-            0..b.levels(),
-            b.positions[j],
-            b.normals[j],
-            &mut flat[j * dim..j * dim + dim],
-        );
-    }
+    flat.par_chunks_mut(dim.max(1) * 256)
+        .enumerate()
+        .for_each(|(chunk, out)| {
+            for (k, o) in out.chunks_mut(dim.max(1)).enumerate() {
+                let j = chunk * 256 + k;
+                ib.reconstruct(alpha, dim, 0..b.levels(), b.positions[j], b.normals[j], o);
+            }
+        });
     flat
 }
 
