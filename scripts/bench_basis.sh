@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Benchmark: basis construction (candidates, Poisson disk, R-trees) on a scene manifest.
+# Benchmark: basis construction only (candidates, Poisson disk, R-trees; --basis-only) on a
+# scene manifest.
 # Usage: scripts/bench_basis.sh [MANIFEST] [extra bake flags...]
 # Default: scenes/sponza.toml (the paper's Sponza: 6 levels, about 339 level-0 points).
 set -euo pipefail
@@ -11,6 +12,6 @@ cargo build --release -p mlt-bake --quiet
 out="${TMPDIR:-/tmp}/bench_basis.mlt"
 for threads in 1 "$(nproc)"; do
     echo "== $manifest, $threads thread(s)"
-    ./target/release/bake "$manifest" -o "$out" --threads "$threads" --stats-json "$out.json" "$@"
+    ./target/release/bake "$manifest" -o "$out" --basis-only --threads "$threads" --stats-json "$out.json" "$@"
 done
 ls -l "$out"
