@@ -43,33 +43,7 @@ enum Command {
     /// [[job]] entries): NAME.mlt and NAME.json per job in --out-dir, and summary.json and
     /// summary.md. Jobs whose outputs carry the same input key are skipped. Exits 1 when any
     /// job failed, after all the others finished.
-    Batch {
-        #[arg(required = true)]
-        manifests: Vec<PathBuf>,
-        #[arg(long)]
-        out_dir: PathBuf,
-        /// Jobs baked at once (they share the threads).
-        #[arg(long, default_value_t = 1)]
-        jobs: usize,
-        /// Worker threads in all (default: all cores).
-        #[arg(long)]
-        threads: Option<usize>,
-        /// Bake even the jobs whose outputs are up to date.
-        #[arg(long)]
-        force: bool,
-        /// Store wall-clock timings in the files (they then differ from run to run).
-        #[arg(long)]
-        record_timings: bool,
-        /// zstd-compress the files' sections.
-        #[arg(long)]
-        compress: bool,
-        /// Print the summary as JSON instead of Markdown.
-        #[arg(long)]
-        json: bool,
-        /// No per-stage log lines; only warnings, errors and the summary.
-        #[arg(short, long)]
-        quiet: bool,
-    },
+    Batch(BatchArgs),
     /// Prints the paper's Table-1 columns for baked files (or --stats-json outputs), side by
     /// side; with --against, next to the paper's row or another bake, with ratios.
     Stats {
@@ -90,6 +64,36 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+}
+
+/// `bake batch` (see the subcommand's help).
+#[derive(Args)]
+struct BatchArgs {
+    #[arg(required = true)]
+    manifests: Vec<PathBuf>,
+    #[arg(long)]
+    out_dir: PathBuf,
+    /// Jobs baked at once (they share the threads).
+    #[arg(long, default_value_t = 1)]
+    jobs: usize,
+    /// Worker threads in all (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Bake even the jobs whose outputs are up to date.
+    #[arg(long)]
+    force: bool,
+    /// Store wall-clock timings in the files (they then differ from run to run).
+    #[arg(long)]
+    record_timings: bool,
+    /// zstd-compress the files' sections.
+    #[arg(long)]
+    compress: bool,
+    /// Print the summary as JSON instead of Markdown.
+    #[arg(long)]
+    json: bool,
+    /// No per-stage log lines; only warnings, errors and the summary.
+    #[arg(short, long)]
+    quiet: bool,
 }
 
 #[derive(Args)]
@@ -469,18 +473,27 @@ fn run_stats(files: &[PathBuf], against: Option<&str>, json: bool) -> Result<()>
     Ok(())
 }
 
-#[allow(clippy::too_many_arguments)]
-fn run_batch_command(
-    manifests: &[PathBuf],
-    out_dir: &Path,
-    jobs: usize,
-    threads: Option<usize>,
-    force: bool,
-    record_timings: bool,
-    compress: bool,
-    json: bool,
-    quiet: bool,
-) -> Result<()> {
+fn run_batch_command(args: &BatchArgs) -> Result<()> {
+    let BatchArgs {
+        manifests,
+        out_dir,
+        jobs,
+        threads,
+        force,
+        record_timings,
+        compress,
+        json,
+        quiet,
+    } = args;
+    let (jobs, threads, force, record_timings, compress, json, quiet) = (
+        *jobs,
+        *threads,
+        *force,
+        *record_timings,
+        *compress,
+        *json,
+        *quiet,
+    );
     let mut all = Vec::new();
     for m in manifests {
         all.extend(read_jobs(m).with_context(|| format!("reading {}", m.display()))?);
@@ -561,27 +574,7 @@ fn main() -> Result<()> {
             compress,
             quiet,
         }) => run_merge(&shards, &output, compress, quiet),
-        Some(Command::Batch {
-            manifests,
-            out_dir,
-            jobs,
-            threads,
-            force,
-            record_timings,
-            compress,
-            json,
-            quiet,
-        }) => run_batch_command(
-            &manifests,
-            &out_dir,
-            jobs,
-            threads,
-            force,
-            record_timings,
-            compress,
-            json,
-            quiet,
-        ),
+        Some(Command::Batch(args)) => run_batch_command(&args),
         Some(Command::Info { file, json }) => run_info(&file, json),
         Some(Command::Stats {
             files,
