@@ -137,10 +137,8 @@ fn main() -> Result<()> {
     if let (Some(d), Some(c)) = (cli.light_dir, cli.cone_deg) {
         light = Light::spot(light.position, light.intensity, d, c, cli.smooth)?;
     }
-    light = Light::point(light.position, light.intensity).map(|p| Light {
-        cone: light.cone,
-        ..p
-    })?;
+    // The overrides must be finite and non-negative too.
+    Light::point(light.position, light.intensity)?;
 
     let sender_levels = tm.params.sender_levels as usize;
     let mut relighter =
