@@ -10,7 +10,7 @@ use mlt_format::{IndexedBasis, Transport};
 use mlt_scenes::RayCaster;
 
 use crate::error::BakeError;
-use crate::neumann::{merge, series, spectral_radius, BounceReceivers, Row};
+use crate::neumann::{series, spectral_radius, BounceReceivers, Row};
 use crate::observer::Observer;
 use crate::refine::{refine, ReceiverLinks, RefineSettings, RefineStats};
 
@@ -185,32 +185,38 @@ pub fn finish_transport(
         &format!("{} bounces, spectral radius {rho:.3}", report.bounces),
     );
 
-    // S = T + bounces (level-0 rows), regrouped sender-major.
-    let mut triples: Vec<(u32, u32, [f32; LINK_DIM])> = Vec::with_capacity(t.link_count());
-    let mut s_per_level = vec![0u64; levels];
+    // S = T + the bounces, regrouped sender-major: every link as (sender, receiver, value),
+    // sorted; a receiver holds at most one T link and one bounce link per sender, summed
+    // (float addition of two terms is commutative, so the order does not matter).
+    let extra_links: usize = extra.iter().map(|r| r.len()).sum();
+    let mut triples: Vec<(u32, u32, [f32; LINK_DIM])> =
+        Vec::with_capacity(t.link_count() + extra_links);
     for (row, &r) in t.rows.iter().enumerate() {
-        let (a, bnd) = (t.offsets[row] as usize, t.offsets[row + 1] as usize);
-        let tl: Vec<(u32, [f32; LINK_DIM])> = t.senders[a..bnd]
-            .iter()
-            .copied()
-            .zip(t.values[a..bnd].iter().copied())
-            .collect();
-        let full = match extra.get(row) {
-            Some(e) if !e.is_empty() => merge(&tl, e),
-            _ => tl,
-        };
-        s_per_level[b.level_of(r as usize)] += full.len() as u64;
-        for (s, v) in full {
-            triples.push((s, r, v));
+        let (a, e) = (t.offsets[row] as usize, t.offsets[row + 1] as usize);
+        for (s, v) in t.senders[a..e].iter().zip(&t.values[a..e]) {
+            triples.push((*s, r, *v));
+        }
+        for (s, v) in extra.get(row).map(|x| &x[..]).unwrap_or(&[]) {
+            triples.push((*s, r, *v));
         }
     }
     triples.sort_unstable_by_key(|&(s, r, _)| (s, r));
+    let mut s_per_level = vec![0u64; levels];
     let mut columns: Vec<(u32, Row)> = Vec::new();
     for (s, r, v) in triples {
         match columns.last_mut() {
-            Some((cs, col)) if *cs == s => col.push((r, v)),
+            Some((cs, col)) if *cs == s => match col.last_mut() {
+                Some((cr, cv)) if *cr == r => {
+                    for k in 0..LINK_DIM {
+                        cv[k] += v[k];
+                    }
+                    continue;
+                }
+                _ => col.push((r, v)),
+            },
             _ => columns.push((s, vec![(r, v)])),
         }
+        s_per_level[b.level_of(r as usize)] += 1;
     }
     let (links, qerr) = Links::pack(
         receivers as u32,
