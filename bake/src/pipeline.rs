@@ -4,7 +4,8 @@ use std::time::Instant;
 
 use glam::Vec3;
 use mlt_format::meta::{
-    BasisStats, CameraInfo, LightInfo, Meta, SceneInfo, Timings, TransportTimings,
+    BasisParams, BasisStats, CameraInfo, LightInfo, Meta, SceneInfo, Timings, TransportParams,
+    TransportTimings,
 };
 use mlt_format::shepard::MIN_WEIGHT_SUM;
 use mlt_format::{BakeContents, IndexedBasis};
@@ -39,7 +40,18 @@ pub struct BakeOutput {
 /// camera and light, and every resolved parameter. Equal keys mean byte-identical files.
 pub fn input_key(scene: &Scene, opts: &BakeOptions) -> Result<u64, BakeError> {
     let (params, _) = resolve(opts, &scene.bake)?;
-    let transport = (!opts.basis_only).then(|| resolve_transport(opts, &scene.bake, &params));
+    let transport = resolve_transport(opts, &scene.bake, &params);
+    Ok(key_of(scene, opts, &params, &transport))
+}
+
+/// [`input_key`] from parameters already resolved.
+fn key_of(
+    scene: &Scene,
+    opts: &BakeOptions,
+    params: &BasisParams,
+    transport: &TransportParams,
+) -> u64 {
+    let transport = (!opts.basis_only).then_some(transport);
     let description = serde_json::json!({
         "tool": tool_version(),
         "format": [mlt_format::container::VERSION_MAJOR, mlt_format::container::VERSION_MINOR],
@@ -54,9 +66,7 @@ pub fn input_key(scene: &Scene, opts: &BakeOptions) -> Result<u64, BakeError> {
         "record_timings": opts.record_timings,
         "compress": opts.compress,
     });
-    Ok(xxhash_rust::xxh3::xxh3_64(
-        description.to_string().as_bytes(),
-    ))
+    xxhash_rust::xxh3::xxh3_64(description.to_string().as_bytes())
 }
 
 /// Bakes a loaded scene (in the current rayon pool; results do not depend on its size).
@@ -67,7 +77,6 @@ pub fn bake_scene(
 ) -> Result<BakeOutput, BakeError> {
     let t_total = Instant::now();
     let mut warnings = scene.warnings.clone();
-    let key = input_key(scene, opts)?;
     if let Some((index, count)) = opts.shard {
         if count == 0 || index >= count {
             return Err(BakeError::InvalidParameter(format!(
@@ -77,6 +86,7 @@ pub fn bake_scene(
     }
     let (mut params, coarse) = resolve(opts, &scene.bake)?;
     let transport_params = resolve_transport(opts, &scene.bake, &params);
+    let key = key_of(scene, opts, &params, &transport_params);
     if !opts.basis_only {
         // Refuse bad transport parameters before spending time on the basis.
         check_params(&transport_params, params.levels)?;
