@@ -12,6 +12,21 @@ shared="${MLT_SHARED:-$here/../shared}"
 if [ ! -d "$shared/scenes" ]; then
     echo "setup: warning: $shared/scenes not found; tests that read the shared scenes will fail (set MLT_SHARED)" >&2
 fi
-# No system packages are needed yet: the bake is pure Rust (the viewer issue will add
-# mesa-vulkan-drivers and libvulkan1 here).
+# The viewer renders with wgpu on Vulkan. Without a GPU, Mesa's software driver (lavapipe)
+# serves, headless and under Xvfb; the window tests need xvfb. Installed only when missing.
+need=()
+for pkg in mesa-vulkan-drivers libvulkan1 xvfb xauth; do
+    dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || need+=("$pkg")
+done
+if [ ${#need[@]} -gt 0 ]; then
+    if ! command -v apt-get >/dev/null 2>&1; then
+        echo "setup: please install ${need[*]} (or your system's Vulkan driver and loader)" >&2
+        exit 1
+    fi
+    sudo_cmd=()
+    [ "$(id -u)" -ne 0 ] && sudo_cmd=(sudo)
+    echo "setup: installing ${need[*]}" >&2
+    "${sudo_cmd[@]}" env DEBIAN_FRONTEND=noninteractive apt-get install -y -q "${need[@]}" >/dev/null \
+        || { "${sudo_cmd[@]}" apt-get update -q >/dev/null && "${sudo_cmd[@]}" env DEBIAN_FRONTEND=noninteractive apt-get install -y -q "${need[@]}" >/dev/null; }
+fi
 cargo fetch --locked

@@ -1,10 +1,11 @@
-//! `view`: the viewer of baked files.
+//! `view`: the viewer of baked files (Lehtinen et al. 2008, sections 3.3 and 4.1).
 //!
-//! Implemented: memory-mapping and validating a file, per-frame CPU relighting with its stage
-//! timings (`--frames N`, a moving light), and probes (`--probe IN.csv --probe-out OUT.csv`).
-//! NOT implemented yet: GPU rendering (G-buffer, splatting, shadow-mapped direct light), the
-//! window and headless images; without `--probe` or `--frames` the binary says so and exits
-//! with status 2.
+//! - `view FILE`: a window (winit + wgpu) with a free camera and a movable light;
+//! - `view FILE --headless --out DIR`: the same rendering without a window, writing
+//!   direct.exr, indirect.exr, final.exr (linear radiance), final.png (tone mapped) and
+//!   timings.json; `--frames N` moves the light along a fixed path and reports medians;
+//! - `view FILE --probe IN.csv --probe-out OUT.csv`: irradiance at given surface points;
+//! - `view FILE --frames N` (without `--headless`): CPU relighting timings only.
 
 use std::path::{Path, PathBuf};
 
@@ -12,18 +13,46 @@ use anyhow::{bail, Context, Result};
 use clap::Parser;
 use glam::Vec3;
 use mlt_format::BakedFile;
+use mlt_view::gpu::mesh::GpuMesh;
+use mlt_view::gpu::{Gpu, Renderer};
+use mlt_view::headless::{light_on_path, median};
 use mlt_view::probe::{evaluate, parse_probes, to_csv};
-use mlt_view::{CpuRelighter, Light, Relight, StageTimes};
+use mlt_view::{Camera, CpuRelighter, Light, Relight, StageTimes};
 
-/// Views a baked light-transport file (CPU relighting and probes; GPU rendering to come).
+/// Views a baked light-transport file: window, headless images, probes.
 #[derive(Parser)]
 #[command(name = "view", version)]
 struct Cli {
     /// A file written by `bake`.
     file: PathBuf,
-    /// The scene to ray-cast for visibility (default: the source recorded in the file).
+    /// The scene to ray-cast for visibility and to rasterise (default: the source recorded
+    /// in the file).
     #[arg(long)]
     scene: Option<String>,
+    /// Render without a window into --out.
+    #[arg(long, requires = "out")]
+    headless: bool,
+    /// Output directory of --headless.
+    #[arg(long, requires = "headless")]
+    out: Option<PathBuf>,
+    /// Camera position (default: the file's camera).
+    #[arg(long, value_parser = vec3)]
+    camera_pos: Option<Vec3>,
+    /// Camera target.
+    #[arg(long, value_parser = vec3)]
+    camera_target: Option<Vec3>,
+    /// Camera up vector.
+    #[arg(long, value_parser = vec3)]
+    camera_up: Option<Vec3>,
+    /// Vertical field of view, degrees.
+    #[arg(long)]
+    fovy: Option<f32>,
+    /// Image width in pixels.
+    #[arg(long)]
+    width: Option<u32>,
+    /// Image height in pixels.
+    #[arg(long)]
+    height: Option<u32>,
     /// Light position (default: the file's light).
     #[arg(long, value_parser = vec3)]
     light_pos: Option<Vec3>,
@@ -39,19 +68,23 @@ struct Cli {
     /// Smooth (glTF) spot falloff instead of a hard cone.
     #[arg(long)]
     smooth: bool,
-    /// Shadow rays per sender point for the direct light.
+    /// Shadow rays per sender point for the direct light at the senders.
     #[arg(long, default_value_t = 8)]
     shadow_rays: u32,
+    /// Shadow-map resolution of the rendered direct light.
+    #[arg(long, default_value_t = 1024)]
+    shadow_res: u32,
     /// Probe points, rows x,y,z,nx,ny,nz.
     #[arg(long, requires = "probe_out")]
     probe: Option<PathBuf>,
     /// Where to write the probes' irradiance.
     #[arg(long, requires = "probe")]
     probe_out: Option<PathBuf>,
-    /// Relight N frames with the light moving on a circle and report per-stage medians.
+    /// Relight (and with --headless render) N frames with the light moving on a circle and
+    /// report per-stage medians.
     #[arg(long)]
     frames: Option<u32>,
-    /// Write the per-stage timings (JSON) here.
+    /// Without --headless: write the CPU stage timings (JSON) here.
     #[arg(long)]
     timings_out: Option<PathBuf>,
 }
@@ -71,14 +104,6 @@ fn vec3(s: &str) -> Result<Vec3, String> {
     Ok(Vec3::new(v[0], v[1], v[2]))
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    v.sort_by(|a, b| a.total_cmp(b));
-    v[v.len() / 2]
-}
-
 fn main() -> Result<()> {
     let cli = Cli::parse();
     let path = &cli.file;
@@ -95,21 +120,10 @@ fn main() -> Result<()> {
             path.display()
         )
     })?;
-    let link_bytes = file.links_bytes()?.context("no links section")?;
+    let link_bytes = file
+        .links_bytes()?
+        .with_context(|| format!("{}: no links section", path.display()))?;
     let links = file.access_links(&link_bytes)?;
-
-    if cli.probe.is_none() && cli.frames.is_none() {
-        eprintln!(
-            "{}: valid, {} basis points on {} levels, {} links; scene {}",
-            path.display(),
-            ib.basis.len(),
-            ib.levels(),
-            links.link_count(),
-            meta.scene.source
-        );
-        eprintln!("view: GPU rendering (window and headless images) is not implemented yet; use --probe or --frames");
-        std::process::exit(2);
-    }
 
     let spec = cli
         .scene
@@ -140,9 +154,25 @@ fn main() -> Result<()> {
     // The overrides must be finite and non-negative too.
     Light::point(light.position, light.intensity)?;
 
+    let c = &meta.camera;
+    let camera = Camera::new(
+        cli.camera_pos.unwrap_or(Vec3::from(c.position)),
+        cli.camera_target.unwrap_or(Vec3::from(c.target)),
+        cli.camera_up.unwrap_or(Vec3::from(c.up)),
+        cli.fovy.unwrap_or(c.fovy_deg),
+        cli.width.unwrap_or(c.width),
+        cli.height.unwrap_or(c.height),
+    )
+    .context("the camera")?;
+
     let sender_levels = tm.params.sender_levels as usize;
     let mut relighter =
         CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, cli.shadow_rays);
+    let (lo, hi) = (
+        Vec3::from(meta.scene.bounds_min),
+        Vec3::from(meta.scene.bounds_max),
+    );
+    let path_radius = 0.05 * (hi - lo).length();
 
     if let (Some(input), Some(output)) = (&cli.probe, &cli.probe_out) {
         let text = std::fs::read_to_string(input)
@@ -159,21 +189,53 @@ fn main() -> Result<()> {
         mlt_format::file::write_atomic(output, to_csv(&probes, &values).as_bytes())
             .with_context(|| format!("writing {}", output.display()))?;
         eprintln!("{} probes written to {}", probes.len(), output.display());
+        if cli.frames.is_none() && !cli.headless {
+            return Ok(());
+        }
+    }
+
+    if cli.headless {
+        let out = cli.out.as_deref().context("--headless needs --out DIR")?;
+        let gpu = Gpu::headless().context("starting the GPU for --headless")?;
+        let mesh = GpuMesh::from_scene(&scene);
+        let mut renderer = Renderer::new(&gpu, &mesh, &ib.basis, cli.shadow_res)
+            .context("setting up the renderer")?;
+        let (buffers, timings) = mlt_view::headless::render(
+            &gpu,
+            &mut renderer,
+            &mut relighter,
+            &ib,
+            &camera,
+            &light,
+            cli.frames.unwrap_or(1),
+            path_radius,
+        )
+        .with_context(|| format!("rendering {}", path.display()))?;
+        mlt_view::headless::write_outputs(out, &buffers, &timings)?;
+        let c = &timings.cpu_median_ms;
+        let g = &timings.gpu_median_ms;
+        eprintln!(
+            "{}x{} on {} ({}): wrote {}/{{direct,indirect,final}}.exr, final.png, timings.json",
+            camera.width,
+            camera.height,
+            timings.adapter.name,
+            timings.adapter.backend,
+            out.display()
+        );
+        eprintln!(
+            "median over {} frame(s): CPU direct {:.1} + pull-push {:.1} + S e {:.1} + flatten {:.1} = {:.1} ms; GPU passes {:.1} ms ({} of {} basis functions splatted)",
+            timings.frames, c.direct, c.project, c.transport, c.flatten, c.total, g.total,
+            timings.splatted_points, timings.basis_points
+        );
+        return Ok(());
     }
 
     if let Some(n) = cli.frames {
-        let (lo, hi) = (
-            Vec3::from(meta.scene.bounds_min),
-            Vec3::from(meta.scene.bounds_max),
-        );
-        let radius = 0.05 * (hi - lo).length();
-        let centre = light.position;
         let mut per_stage: [Vec<f64>; 4] = Default::default();
         let mut senders = Vec::new();
         for f in 0..n.max(1) {
-            let a = std::f32::consts::TAU * f as f32 / n.max(1) as f32;
-            light.position = centre + Vec3::new(radius * a.cos(), 0.0, radius * a.sin());
-            let frame = relighter.relight(&light);
+            let l = light_on_path(&light, path_radius, f, n.max(1));
+            let frame = relighter.relight(&l);
             let t: StageTimes = frame.times;
             per_stage[0].push(t.direct_ms);
             per_stage[1].push(t.project_ms);
@@ -190,7 +252,7 @@ fn main() -> Result<()> {
             "threads": rayon::current_num_threads(),
             "median_ms": {"direct": d, "project": p, "transport": s, "flatten": fl, "total": d + p + s + fl},
             "median_senders_used": median(senders),
-            "gpu": "not implemented yet: CPU relighting only",
+            "gpu": "not used: CPU relighting only (add --headless --out DIR to render)",
         });
         eprintln!(
             "median per frame over {n} frames with a moving light: direct {d:.1} ms, pull-push {p:.1} ms, S e {s:.1} ms, flatten {fl:.1} ms"
@@ -200,8 +262,19 @@ fn main() -> Result<()> {
         } else {
             println!("{}", serde_json::to_string_pretty(&json)?);
         }
+        return Ok(());
     }
-    Ok(())
+
+    mlt_view::window::run(mlt_view::window::WindowSetup {
+        title: format!("view {}", path.display()),
+        scene: &scene,
+        ib: &ib,
+        relighter: &mut relighter,
+        camera,
+        light,
+        bounds: (lo, hi),
+        shadow_res: cli.shadow_res,
+    })
 }
 
 fn write_json(out: &Path, json: &serde_json::Value) -> Result<()> {

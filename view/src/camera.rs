@@ -1,0 +1,174 @@
+//! The pinhole camera of DESIGN.md: position, target, up, vertical field of view in degrees,
+//! width x height pixels. Pixel `(px, py)` has its centre at `(px + 0.5, py + 0.5)`, row 0 at
+//! the top of the image. The GPU rasteriser and the CPU reference integrator both use these
+//! definitions, so their images line up pixel for pixel.
+
+use glam::{Mat4, Vec3};
+use mlt_format::meta::CameraInfo;
+
+/// A camera in world space.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Camera {
+    pub position: Vec3,
+    pub target: Vec3,
+    pub up: Vec3,
+    pub fovy_deg: f32,
+    pub width: u32,
+    pub height: u32,
+}
+
+/// Why a camera is unusable.
+#[derive(Debug, thiserror::Error)]
+#[error("invalid camera: {0}")]
+pub struct CameraError(pub String);
+
+impl Camera {
+    /// Checks the camera: finite vectors, a view direction, an up vector not along it, a field
+    /// of view in (0, 180) degrees and a non-empty image no larger than 16384 on a side.
+    pub fn new(
+        position: Vec3,
+        target: Vec3,
+        up: Vec3,
+        fovy_deg: f32,
+        width: u32,
+        height: u32,
+    ) -> Result<Camera, CameraError> {
+        if !(position.is_finite() && target.is_finite() && up.is_finite()) {
+            return Err(CameraError(format!(
+                "position {position}, target {target} and up {up} must be finite"
+            )));
+        }
+        let forward = target - position;
+        if forward.length_squared() <= f32::MIN_POSITIVE {
+            return Err(CameraError(format!(
+                "target {target} equals the position {position}"
+            )));
+        }
+        if forward.normalize().cross(up.normalize_or_zero()).length() < 1e-6 {
+            return Err(CameraError(format!(
+                "up {up} is zero or along the view direction {forward}"
+            )));
+        }
+        if !(fovy_deg > 0.0 && fovy_deg < 180.0) {
+            return Err(CameraError(format!(
+                "vertical field of view {fovy_deg} degrees is not in (0, 180)"
+            )));
+        }
+        if width == 0 || height == 0 || width > 16384 || height > 16384 {
+            return Err(CameraError(format!(
+                "image size {width}x{height} is not within 1..=16384 on each side"
+            )));
+        }
+        Ok(Camera {
+            position,
+            target,
+            up,
+            fovy_deg,
+            width,
+            height,
+        })
+    }
+
+    /// The camera stored in a baked file.
+    pub fn from_info(info: &CameraInfo) -> Result<Camera, CameraError> {
+        Camera::new(
+            Vec3::from(info.position),
+            Vec3::from(info.target),
+            Vec3::from(info.up),
+            info.fovy_deg,
+            info.width,
+            info.height,
+        )
+    }
+
+    /// Unit vectors `(right, up, back)` of the camera frame (right-handed, looking down -back).
+    pub fn frame(&self) -> (Vec3, Vec3, Vec3) {
+        let back = (self.position - self.target).normalize();
+        let right = self.up.cross(back).normalize();
+        let up = back.cross(right);
+        (right, up, back)
+    }
+
+    pub fn aspect(&self) -> f32 {
+        self.width as f32 / self.height as f32
+    }
+
+    /// The unit direction of the primary ray through the point `(px, py)` of the image, in
+    /// pixels from the top-left corner (use `px + 0.5, py + 0.5` for a pixel's centre).
+    pub fn ray_direction(&self, px: f32, py: f32) -> Vec3 {
+        let (right, up, back) = self.frame();
+        let t = (0.5 * self.fovy_deg.to_radians()).tan();
+        let sx = (2.0 * px / self.width as f32 - 1.0) * t * self.aspect();
+        let sy = (1.0 - 2.0 * py / self.height as f32) * t;
+        (right * sx + up * sy - back).normalize()
+    }
+
+    /// World to view transform (right-handed, camera looking down -z).
+    pub fn view_matrix(&self) -> Mat4 {
+        glam::camera::rh::view::look_at_mat4(self.position, self.target, self.up)
+    }
+
+    /// Perspective projection to wgpu's clip space (depth 0..1) with the given planes.
+    pub fn projection_matrix(&self, near: f32, far: f32) -> Mat4 {
+        glam::camera::rh::proj::directx::perspective(
+            self.fovy_deg.to_radians(),
+            self.aspect(),
+            near,
+            far,
+        )
+    }
+
+    /// Near and far planes that enclose a scene with the given bounds: far beyond its farthest
+    /// corner, near a fixed fraction (1e-4) of far, so that the planes scale with the scene.
+    pub fn planes_for_bounds(&self, lo: Vec3, hi: Vec3) -> (f32, f32) {
+        let centre = 0.5 * (lo + hi);
+        let far = ((self.position - centre).length() + 0.5 * (hi - lo).length()) * 1.01;
+        let far = far.max(f32::MIN_POSITIVE * 1e8);
+        (far * 1e-4, far)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cam() -> Camera {
+        Camera::new(Vec3::new(0.0, 0.0, 5.0), Vec3::ZERO, Vec3::Y, 90.0, 200, 100).unwrap()
+    }
+
+    #[test]
+    fn centre_ray_looks_at_the_target_and_corners_span_the_field_of_view() {
+        let c = cam();
+        let d = c.ray_direction(100.0, 50.0);
+        assert!((d - Vec3::NEG_Z).length() < 1e-6);
+        // Top edge at 45 degrees up (fovy 90), left edge at atan(2) (aspect 2).
+        let top = c.ray_direction(100.0, 0.0);
+        assert!((top.y.atan2(-top.z).to_degrees() - 45.0).abs() < 1e-4);
+        let left = c.ray_direction(0.0, 50.0);
+        assert!((left.x.atan2(-left.z) + 2f32.atan()).abs() < 1e-5);
+    }
+
+    #[test]
+    fn rays_agree_with_the_projection_matrix() {
+        let c = cam();
+        let vp = c.projection_matrix(0.1, 100.0) * c.view_matrix();
+        for (px, py) in [(10.5, 20.5), (150.25, 90.75), (199.5, 0.5)] {
+            let p = c.position + c.ray_direction(px, py) * 3.0;
+            let clip = vp * p.extend(1.0);
+            let ndc = clip.truncate() / clip.w;
+            let sx = (ndc.x + 1.0) * 0.5 * c.width as f32;
+            let sy = (1.0 - ndc.y) * 0.5 * c.height as f32;
+            assert!((sx - px).abs() < 1e-3 && (sy - py).abs() < 1e-3, "{sx},{sy} vs {px},{py}");
+        }
+    }
+
+    #[test]
+    fn bad_cameras_are_refused() {
+        let p = Vec3::new(0.0, 0.0, 5.0);
+        assert!(Camera::new(p, p, Vec3::Y, 60.0, 8, 8).is_err());
+        assert!(Camera::new(p, Vec3::ZERO, Vec3::Z, 60.0, 8, 8).is_err());
+        assert!(Camera::new(p, Vec3::ZERO, Vec3::Y, 0.0, 8, 8).is_err());
+        assert!(Camera::new(p, Vec3::ZERO, Vec3::Y, 60.0, 0, 8).is_err());
+        assert!(Camera::new(Vec3::NAN, Vec3::ZERO, Vec3::Y, 60.0, 8, 8).is_err());
+    }
+}

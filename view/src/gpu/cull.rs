@@ -1,0 +1,126 @@
+//! Frustum culling of basis functions with the R-tree's nodes (section 4.1): a node whose box
+//! (which bounds its points' support spheres) lies outside a frustum plane is skipped with its
+//! whole subtree; in the leaves that remain, each support sphere is tested.
+
+use glam::{Mat4, Vec3, Vec4};
+use mlt_format::IndexedBasis;
+
+/// The six planes of a view-projection's frustum, `dot(p, x) + w >= 0` inside, normalised.
+#[derive(Clone, Copy, Debug)]
+pub struct Frustum {
+    planes: [Vec4; 6],
+}
+
+impl Frustum {
+    /// Planes of wgpu's clip volume (`-w <= x, y <= w`, `0 <= z <= w`).
+    pub fn from_view_proj(m: &Mat4) -> Frustum {
+        let r = [m.row(0), m.row(1), m.row(2), m.row(3)];
+        let planes = [r[3] + r[0], r[3] - r[0], r[3] + r[1], r[3] - r[1], r[2], r[3] - r[2]]
+            .map(|p| {
+                let len = p.truncate().length();
+                if len > 0.0 {
+                    p / len
+                } else {
+                    p
+                }
+            });
+        Frustum { planes }
+    }
+
+    /// True unless the sphere lies entirely outside one plane.
+    pub fn meets_sphere(&self, c: Vec3, r: f32) -> bool {
+        self.planes.iter().all(|p| p.truncate().dot(c) + p.w >= -r)
+    }
+
+    /// True unless the box lies entirely outside one plane.
+    pub fn meets_box(&self, lo: Vec3, hi: Vec3) -> bool {
+        self.planes.iter().all(|p| {
+            let n = p.truncate();
+            // The box corner farthest along the plane's normal.
+            let v = Vec3::select(n.cmpge(Vec3::ZERO), hi, lo);
+            n.dot(v) + p.w >= 0.0
+        })
+    }
+}
+
+/// Indices of the basis functions of every level whose support sphere meets the frustum, in
+/// increasing order within each level (levels coarsest first), written into `out`. Returns the
+/// number of R-tree nodes visited.
+pub fn visible_points(ib: &IndexedBasis, frustum: &Frustum, out: &mut Vec<u32>) -> usize {
+    out.clear();
+    let b = &ib.basis;
+    let mut visited = 0;
+    let mut stack: Vec<u32> = Vec::with_capacity(64);
+    for tree in &ib.trees {
+        if tree.node_count.is_empty() {
+            continue;
+        }
+        let start = out.len();
+        stack.clear();
+        stack.push(0);
+        while let Some(node) = stack.pop() {
+            let i = node as usize;
+            visited += 1;
+            if !frustum.meets_box(Vec3::from(tree.node_min[i]), Vec3::from(tree.node_max[i])) {
+                continue;
+            }
+            let count = tree.node_count[i] as usize;
+            if count > 0 {
+                let first = tree.node_first[i] as usize;
+                for &j in &tree.items[first..first + count] {
+                    let ju = j as usize;
+                    if frustum.meets_sphere(Vec3::from(b.positions[ju]), b.radii[ju]) {
+                        out.push(j);
+                    }
+                }
+            } else {
+                // Children: the left one follows its parent, the right one is at node_first.
+                stack.push(tree.node_first[i]);
+                stack.push(node + 1);
+            }
+        }
+        out[start..].sort_unstable();
+    }
+    visited
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::Camera;
+
+    #[test]
+    fn culling_keeps_exactly_the_spheres_that_meet_the_frustum() {
+        // A synthetic basis: a grid of points on a plane with varied radii.
+        let mut basis = mlt_format::Basis::default();
+        for k in 0..400 {
+            let (x, z) = ((k % 20) as f32 * 0.5 - 5.0, (k / 20) as f32 * 0.5 - 5.0);
+            basis.positions.push([x, 0.0, z]);
+            basis.normals.push([0.0, 1.0, 0.0]);
+            basis.radii.push(0.2 + 0.3 * ((k * 7) % 5) as f32 / 5.0);
+        }
+        basis.level_offsets = vec![0, 100, 400];
+        basis.disk_radii = vec![1.0, 0.5];
+        let ib = IndexedBasis::build(basis).unwrap();
+        let cam = Camera::new(
+            Vec3::new(0.0, 3.0, 6.0),
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::Y,
+            40.0,
+            64,
+            48,
+        )
+        .unwrap();
+        let f = Frustum::from_view_proj(&(cam.projection_matrix(0.1, 50.0) * cam.view_matrix()));
+        let mut out = Vec::new();
+        visible_points(&ib, &f, &mut out);
+        let brute: Vec<u32> = (0..400u32)
+            .filter(|&j| {
+                let j = j as usize;
+                f.meets_sphere(Vec3::from(ib.basis.positions[j]), ib.basis.radii[j])
+            })
+            .collect();
+        assert_eq!(out, brute);
+        assert!(!out.is_empty() && out.len() < 400, "{}", out.len());
+    }
+}

@@ -1,0 +1,79 @@
+//! Copying textures back to the CPU (rows padded to wgpu's 256-byte alignment on the way).
+
+use super::context::{Gpu, GpuError};
+
+/// Reads a whole 2-D texture of a 16-byte-per-texel format (`Rgba32Float`) as `4 * w * h`
+/// floats, rows from the top.
+pub fn read_rgba32f(gpu: &Gpu, texture: &wgpu::Texture) -> Result<Vec<f32>, GpuError> {
+    let raw = read_raw(gpu, texture, 16)?;
+    Ok(raw
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect())
+}
+
+/// Reads a whole 2-D texture of `bytes_per_texel` bytes per texel, rows from the top, without
+/// the row padding.
+pub fn read_raw(
+    gpu: &Gpu,
+    texture: &wgpu::Texture,
+    bytes_per_texel: u32,
+) -> Result<Vec<u8>, GpuError> {
+    let (w, h) = (texture.width(), texture.height());
+    let bytes_per_row = bytes_per_texel * w;
+    let padded = bytes_per_row.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT)
+        * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
+    let buffer = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("readback"),
+        size: padded as u64 * h as u64,
+        usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+        mapped_at_creation: false,
+    });
+    let mut encoder = gpu
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("readback"),
+        });
+    encoder.copy_texture_to_buffer(
+        wgpu::TexelCopyTextureInfo {
+            texture,
+            mip_level: 0,
+            origin: wgpu::Origin3d::ZERO,
+            aspect: wgpu::TextureAspect::All,
+        },
+        wgpu::TexelCopyBufferInfo {
+            buffer: &buffer,
+            layout: wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(padded),
+                rows_per_image: Some(h),
+            },
+        },
+        wgpu::Extent3d {
+            width: w,
+            height: h,
+            depth_or_array_layers: 1,
+        },
+    );
+    gpu.queue.submit([encoder.finish()]);
+    let (tx, rx) = std::sync::mpsc::channel();
+    buffer.map_async(wgpu::MapMode::Read, .., move |r| {
+        let _ = tx.send(r);
+    });
+    gpu.wait()?;
+    rx.recv()
+        .map_err(|e| GpuError::Readback(e.to_string()))?
+        .map_err(|e| GpuError::Readback(e.to_string()))?;
+    let mut out = Vec::with_capacity((bytes_per_row * h) as usize);
+    {
+        let view = buffer
+            .get_mapped_range(..)
+            .map_err(|e| GpuError::Readback(format!("{e:?}")))?;
+        for row in 0..h as usize {
+            let start = row * padded as usize;
+            out.extend_from_slice(&view[start..start + bytes_per_row as usize]);
+        }
+    }
+    buffer.unmap();
+    Ok(out)
+}

@@ -1,0 +1,191 @@
+//! Headless rendering: relight on the CPU, render on the GPU without a window, write the
+//! linear buffers (OpenEXR), a tone-mapped PNG and per-stage timings.
+
+use std::path::Path;
+
+use glam::Vec3;
+use mlt_format::IndexedBasis;
+use serde::Serialize;
+
+use crate::camera::Camera;
+use crate::gpu::context::AdapterReport;
+use crate::gpu::{Buffers, Gpu, GpuError, RenderTimes, Renderer};
+use crate::images::ImageError;
+use crate::light::Light;
+use crate::relight::{Relight, StageTimes};
+
+/// Errors of a headless render.
+#[derive(Debug, thiserror::Error)]
+pub enum HeadlessError {
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+    #[error(transparent)]
+    Image(#[from] ImageError),
+    #[error("{path}: {msg}")]
+    Output { path: String, msg: String },
+}
+
+/// Median stage times over the frames of a headless run.
+#[derive(Clone, Debug, Serialize)]
+pub struct Timings {
+    pub frames: u32,
+    pub moving_light: bool,
+    pub width: u32,
+    pub height: u32,
+    pub threads: usize,
+    /// CPU relighting, milliseconds (medians over frames).
+    pub cpu_median_ms: CpuMedians,
+    /// GPU passes, wall-clock milliseconds with a wait after each pass (medians). On a
+    /// software rasteriser these measure the CPU that emulates the GPU.
+    pub gpu_median_ms: GpuMedians,
+    pub splatted_points: usize,
+    pub basis_points: usize,
+    pub median_senders_used: f64,
+    pub adapter: AdapterReport,
+    pub accumulation_format: String,
+}
+
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct CpuMedians {
+    pub direct: f64,
+    pub project: f64,
+    pub transport: f64,
+    pub flatten: f64,
+    pub total: f64,
+}
+
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct GpuMedians {
+    pub cull: f64,
+    pub gbuffer: f64,
+    pub shadow: f64,
+    pub splat: f64,
+    pub resolve: f64,
+    pub total: f64,
+}
+
+/// Median of a list (0 when empty).
+pub fn median(mut v: Vec<f64>) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_by(|a, b| a.total_cmp(b));
+    v[v.len() / 2]
+}
+
+/// The light of frame `f` of `n` on the fixed path of `--frames`: a horizontal circle of
+/// radius `radius` around the given light's position (frame 0 on the +X side).
+pub fn light_on_path(light: &Light, radius: f32, f: u32, n: u32) -> Light {
+    let a = std::f32::consts::TAU * f as f32 / n.max(1) as f32;
+    let mut l = *light;
+    l.position = light.position + Vec3::new(radius * a.cos(), 0.0, radius * a.sin());
+    l
+}
+
+/// Renders `frames` frames (the light moving on [`light_on_path`] when more than one), then
+/// the requested light, and returns the buffers of the latter with median timings.
+#[allow(clippy::too_many_arguments)]
+pub fn render(
+    gpu: &Gpu,
+    renderer: &mut Renderer,
+    relighter: &mut dyn Relight,
+    ib: &IndexedBasis,
+    camera: &Camera,
+    light: &Light,
+    frames: u32,
+    path_radius: f32,
+) -> Result<(Buffers, Timings), HeadlessError> {
+    let frames = frames.max(1);
+    let mut cpu: Vec<StageTimes> = Vec::new();
+    let mut gpu_times: Vec<RenderTimes> = Vec::new();
+    let mut senders = Vec::new();
+    let moving = frames > 1;
+    for f in 0..frames {
+        let l = if moving {
+            light_on_path(light, path_radius, f, frames)
+        } else {
+            *light
+        };
+        let frame = relighter.relight(&l);
+        cpu.push(frame.times);
+        senders.push(frame.senders_used as f64);
+        renderer.set_coefficients(gpu, &frame.flat);
+        // Every frame is a full frame: the camera is redrawn too, as when a window resizes.
+        renderer.invalidate();
+        gpu_times.push(renderer.render(gpu, ib, camera, &l, true)?);
+    }
+    if moving {
+        let frame = relighter.relight(light);
+        renderer.set_coefficients(gpu, &frame.flat);
+        renderer.render(gpu, ib, camera, light, false)?;
+    }
+    let buffers = renderer.read_buffers(gpu)?;
+    let m = |f: &dyn Fn(&StageTimes) -> f64| median(cpu.iter().map(f).collect());
+    let cpu_median_ms = CpuMedians {
+        direct: m(&|t| t.direct_ms),
+        project: m(&|t| t.project_ms),
+        transport: m(&|t| t.transport_ms),
+        flatten: m(&|t| t.flatten_ms),
+        total: m(&|t| t.direct_ms + t.project_ms + t.transport_ms + t.flatten_ms),
+    };
+    let g = |f: &dyn Fn(&RenderTimes) -> f64| median(gpu_times.iter().map(f).collect());
+    let gpu_median_ms = GpuMedians {
+        cull: g(&|t| t.cull_ms),
+        gbuffer: g(&|t| t.gbuffer_ms),
+        shadow: g(&|t| t.shadow_ms),
+        splat: g(&|t| t.splat_ms),
+        resolve: g(&|t| t.resolve_ms),
+        total: g(&|t| t.cull_ms + t.gbuffer_ms + t.shadow_ms + t.splat_ms + t.resolve_ms),
+    };
+    let timings = Timings {
+        frames,
+        moving_light: moving,
+        width: camera.width,
+        height: camera.height,
+        threads: rayon::current_num_threads(),
+        cpu_median_ms,
+        gpu_median_ms,
+        splatted_points: gpu_times.last().map(|t| t.splatted_points).unwrap_or(0),
+        basis_points: ib.basis.len(),
+        median_senders_used: median(senders),
+        adapter: gpu.report.clone(),
+        accumulation_format: format!("{:?}", renderer.accumulation_format()),
+    };
+    Ok((buffers, timings))
+}
+
+/// Writes DIR/direct.exr, indirect.exr, final.exr, final.png (and direct.png, indirect.png,
+/// each tone-mapped on its own) and timings.json (each file
+/// atomically). Refuses buffers with NaN or infinite values, naming the buffer.
+pub fn write_outputs(dir: &Path, buffers: &Buffers, timings: &Timings) -> Result<(), HeadlessError> {
+    std::fs::create_dir_all(dir).map_err(|e| HeadlessError::Output {
+        path: dir.display().to_string(),
+        msg: e.to_string(),
+    })?;
+    for (name, img) in [
+        ("direct", &buffers.direct),
+        ("indirect", &buffers.indirect),
+        ("final", &buffers.final_),
+    ] {
+        if !img.all_finite() {
+            return Err(HeadlessError::Output {
+                path: dir.join(format!("{name}.exr")).display().to_string(),
+                msg: "the rendered buffer has NaN or infinite pixels; nothing written".into(),
+            });
+        }
+    }
+    buffers.direct.write_exr(&dir.join("direct.exr"))?;
+    buffers.indirect.write_exr(&dir.join("indirect.exr"))?;
+    buffers.final_.write_exr(&dir.join("final.exr"))?;
+    buffers.final_.write_png(&dir.join("final.png"))?;
+    // Each buffer tone-mapped on its own, for people looking at the parts.
+    buffers.direct.write_png(&dir.join("direct.png"))?;
+    buffers.indirect.write_png(&dir.join("indirect.png"))?;
+    let json = serde_json::to_string_pretty(timings).map_err(|e| HeadlessError::Output {
+        path: dir.join("timings.json").display().to_string(),
+        msg: e.to_string(),
+    })?;
+    mlt_format::file::write_atomic(&dir.join("timings.json"), json.as_bytes())
+        .map_err(ImageError::from)?;
+    Ok(())
+}

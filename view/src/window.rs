@@ -1,0 +1,460 @@
+//! The interactive window (winit + wgpu): a fly or orbit camera, a light moved with keys or
+//! by dragging, view modes, screenshots, and a title-bar readout of frame rate and stage
+//! timings. Relighting runs only when the light moved; the G-buffer only when the camera did.
+//!
+//! Controls: mouse drag (left) turns the camera, W/A/S/D/Q/E move it (Shift: faster), O
+//! toggles fly and orbit; right drag or I/J/K/L/U/N move the light; V cycles the views (final,
+//! direct, indirect, level used, basis points), [ and ] pick the level of the points view;
+//! H toggles shadows; P saves a screenshot (PNG of the view, EXR of the linear buffers) in the
+//! working directory; R resets camera and light; Esc quits.
+
+use std::collections::HashSet;
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::{anyhow, bail, Context, Result};
+use glam::{Quat, Vec3};
+use mlt_format::IndexedBasis;
+use mlt_scenes::Scene;
+use winit::application::ApplicationHandler;
+use winit::event::{ElementState, MouseButton, WindowEvent};
+use winit::event_loop::{ActiveEventLoop, ControlFlow, EventLoop};
+use winit::keyboard::{KeyCode, PhysicalKey};
+use winit::window::{Window, WindowId};
+
+use crate::camera::Camera;
+use crate::gpu::mesh::GpuMesh;
+use crate::gpu::{Gpu, Renderer, ViewMode};
+use crate::images::{luminance, RgbImage, ToneMap};
+use crate::light::Light;
+use crate::relight::{Relight, StageTimes};
+
+/// What the window starts from.
+pub struct WindowSetup<'a> {
+    pub title: String,
+    pub scene: &'a Scene,
+    pub ib: &'a IndexedBasis,
+    pub relighter: &'a mut dyn Relight,
+    pub camera: Camera,
+    pub light: Light,
+    pub bounds: (Vec3, Vec3),
+    pub shadow_res: u32,
+}
+
+/// True when a display server can be reached (this build talks X11; Wayland sessions provide
+/// it through XWayland).
+pub fn display_available() -> bool {
+    std::env::var_os("DISPLAY").is_some_and(|d| !d.is_empty())
+}
+
+/// Opens the window and runs until it is closed.
+pub fn run(setup: WindowSetup<'_>) -> Result<()> {
+    if !display_available() {
+        bail!(
+            "no display: DISPLAY is not set, so no window can open. Render to files instead with \
+             --headless --out DIR (or start an X server, e.g. xvfb-run)"
+        );
+    }
+    let event_loop = EventLoop::new().map_err(|e| {
+        anyhow!("cannot open the display ({e}); render to files instead with --headless --out DIR")
+    })?;
+    event_loop.set_control_flow(ControlFlow::Poll);
+    let mut app = App {
+        start_camera: setup.camera,
+        start_light: setup.light,
+        setup,
+        state: None,
+        error: None,
+    };
+    event_loop.run_app(&mut app).context("the window's event loop")?;
+    match app.error {
+        Some(e) => Err(e),
+        None => Ok(()),
+    }
+}
+
+struct App<'a> {
+    setup: WindowSetup<'a>,
+    start_camera: Camera,
+    start_light: Light,
+    state: Option<State>,
+    error: Option<anyhow::Error>,
+}
+
+struct State {
+    window: Arc<Window>,
+    surface: wgpu::Surface<'static>,
+    config: wgpu::SurfaceConfiguration,
+    gpu: Gpu,
+    renderer: Renderer,
+    camera: Camera,
+    light: Light,
+    orbit: bool,
+    mode: ViewMode,
+    level: usize,
+    keys: HashSet<KeyCode>,
+    drag: Option<(MouseButton, (f64, f64))>,
+    cursor: (f64, f64),
+    tone: ToneMap,
+    tone_dirty: bool,
+    last_tick: Instant,
+    frame_times: Vec<f64>,
+    stage: StageTimes,
+    flat_max: f32,
+    screenshots: u32,
+    scale: f32,
+}
+
+impl App<'_> {
+    fn init(&mut self, event_loop: &ActiveEventLoop) -> Result<State> {
+        let cam = self.setup.camera;
+        let attrs = Window::default_attributes()
+            .with_title(self.setup.title.clone())
+            .with_inner_size(winit::dpi::PhysicalSize::new(cam.width, cam.height));
+        let window = Arc::new(event_loop.create_window(attrs).context("creating the window")?);
+        let instance = wgpu::Instance::new(
+            wgpu::InstanceDescriptor::new_with_display_handle_from_env(Box::new(
+                event_loop.owned_display_handle(),
+            )),
+        );
+        let surface = instance
+            .create_surface(window.clone())
+            .context("creating the window's surface")?;
+        let gpu = Gpu::with_instance(instance, Some(&surface))?;
+        let size = window.inner_size();
+        let caps = surface.get_capabilities(&gpu.adapter);
+        let format = caps
+            .formats
+            .iter()
+            .copied()
+            .find(|f| f.is_srgb())
+            .or_else(|| caps.formats.first().copied())
+            .context("the surface offers no format")?;
+        let config = wgpu::SurfaceConfiguration {
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
+            format,
+            color_space: wgpu::SurfaceColorSpace::Auto,
+            width: size.width.max(1),
+            height: size.height.max(1),
+            present_mode: wgpu::PresentMode::AutoVsync,
+            desired_maximum_frame_latency: 2,
+            alpha_mode: caps
+                .alpha_modes
+                .first()
+                .copied()
+                .unwrap_or(wgpu::CompositeAlphaMode::Auto),
+            view_formats: vec![],
+        };
+        surface.configure(&gpu.device, &config);
+        let mesh = GpuMesh::from_scene(self.setup.scene);
+        let renderer = Renderer::new(&gpu, &mesh, &self.setup.ib.basis, self.setup.shadow_res)?;
+        let mut camera = cam;
+        camera.width = config.width;
+        camera.height = config.height;
+        let (lo, hi) = self.setup.bounds;
+        let state = State {
+            window,
+            surface,
+            config,
+            gpu,
+            renderer,
+            camera,
+            light: self.setup.light,
+            orbit: false,
+            mode: ViewMode::Final,
+            level: 0,
+            keys: HashSet::new(),
+            drag: None,
+            cursor: (0.0, 0.0),
+            tone: ToneMap {
+                key: 0.18,
+                log_average: 1.0,
+                white: 1.0,
+            },
+            tone_dirty: true,
+            last_tick: Instant::now(),
+            frame_times: Vec::new(),
+            stage: StageTimes::default(),
+            flat_max: 1.0,
+            screenshots: 0,
+            scale: (hi - lo).length().max(f32::MIN_POSITIVE),
+        };
+        eprintln!(
+            "view: {} ({:?}); V views, P screenshot, O orbit/fly, I/J/K/L/U/N or right drag move the light, Esc quits",
+            state.gpu.report.name, state.gpu.report.backend
+        );
+        Ok(state)
+    }
+
+    fn frame(&mut self) -> Result<()> {
+        let Some(s) = self.state.as_mut() else {
+            return Ok(());
+        };
+        let now = Instant::now();
+        let dt = (now - s.last_tick).as_secs_f32().min(0.25);
+        s.last_tick = now;
+        move_with_keys(s, dt);
+
+        let frame = self.setup.relighter.relight(&s.light);
+        if !frame.reused {
+            s.renderer.set_coefficients(&s.gpu, &frame.flat);
+            s.renderer.invalidate();
+            s.stage = frame.times;
+            s.flat_max = max_irradiance(&frame.flat);
+            s.tone_dirty = true;
+        }
+        let times = s
+            .renderer
+            .render(&s.gpu, self.setup.ib, &s.camera, &s.light, false)?;
+        if times.gbuffer_ms > 0.0 || times.cull_ms > 0.0 {
+            s.tone_dirty = true;
+        }
+        if s.tone_dirty {
+            // Reinhard's key needs the image's log-average luminance: read the final buffer.
+            let buffers = s.renderer.read_buffers(&s.gpu)?;
+            s.tone = ToneMap::measure(&buffers.final_);
+            s.tone_dirty = false;
+        }
+        let output = match s.surface.get_current_texture() {
+            wgpu::CurrentSurfaceTexture::Success(t) | wgpu::CurrentSurfaceTexture::Suboptimal(t) => t,
+            other => {
+                // Lost or outdated: reconfigure and try on the next frame.
+                let _ = other;
+                s.surface.configure(&s.gpu.device, &s.config);
+                return Ok(());
+            }
+        };
+        let view = output
+            .texture
+            .create_view(&wgpu::TextureViewDescriptor::default());
+        s.renderer.display(
+            &s.gpu,
+            &view,
+            s.config.format,
+            &s.tone,
+            s.mode,
+            s.level,
+            s.flat_max,
+        )?;
+        s.gpu.queue.present(output);
+
+        s.frame_times.push(dt as f64);
+        if s.frame_times.len() >= 10 {
+            let mean = s.frame_times.iter().sum::<f64>() / s.frame_times.len() as f64;
+            s.frame_times.clear();
+            let t = &s.stage;
+            s.window.set_title(&format!(
+                "{} | {:.1} fps | {} | relight: direct {:.1} + pull-push {:.1} + S e {:.1} + flatten {:.1} ms | {} splats",
+                self.setup.title,
+                1.0 / mean.max(1e-9),
+                s.mode.name(),
+                t.direct_ms,
+                t.project_ms,
+                t.transport_ms,
+                t.flatten_ms,
+                times.splatted_points
+            ));
+        }
+        Ok(())
+    }
+
+    fn screenshot(&mut self) -> Result<()> {
+        let Some(s) = self.state.as_mut() else {
+            return Ok(());
+        };
+        let buffers = s.renderer.read_buffers(&s.gpu)?;
+        let img: &RgbImage = match s.mode {
+            ViewMode::Direct => &buffers.direct,
+            ViewMode::Indirect => &buffers.indirect,
+            _ => &buffers.final_,
+        };
+        let name = format!("screenshot-{:03}", s.screenshots);
+        s.screenshots += 1;
+        img.write_png(std::path::Path::new(&format!("{name}.png")))?;
+        buffers
+            .final_
+            .write_exr(std::path::Path::new(&format!("{name}-final.exr")))?;
+        eprintln!("view: wrote {name}.png and {name}-final.exr");
+        Ok(())
+    }
+}
+
+fn max_irradiance(flat: &[f32]) -> f32 {
+    flat.chunks_exact(9)
+        .map(|c| {
+            let e = [0, 1, 2].map(|k| Vec3::new(c[3 * k], c[3 * k + 1], c[3 * k + 2]).length());
+            luminance(e)
+        })
+        .fold(0.0f32, f32::max)
+}
+
+fn move_with_keys(s: &mut State, dt: f32) {
+    let fast = if s.keys.contains(&KeyCode::ShiftLeft) {
+        4.0
+    } else {
+        1.0
+    };
+    let speed = 0.25 * s.scale * dt * fast;
+    let (right, up, back) = s.camera.frame();
+    let mut m = Vec3::ZERO;
+    for (k, d) in [
+        (KeyCode::KeyW, -back),
+        (KeyCode::KeyS, back),
+        (KeyCode::KeyD, right),
+        (KeyCode::KeyA, -right),
+        (KeyCode::KeyE, up),
+        (KeyCode::KeyQ, -up),
+    ] {
+        if s.keys.contains(&k) {
+            m += d;
+        }
+    }
+    if m != Vec3::ZERO {
+        let m = m * speed;
+        s.camera.position += m;
+        if !s.orbit {
+            s.camera.target += m;
+        }
+    }
+    let mut l = Vec3::ZERO;
+    for (k, d) in [
+        (KeyCode::KeyI, -back),
+        (KeyCode::KeyK, back),
+        (KeyCode::KeyL, right),
+        (KeyCode::KeyJ, -right),
+        (KeyCode::KeyU, up),
+        (KeyCode::KeyN, -up),
+    ] {
+        if s.keys.contains(&k) {
+            l += d;
+        }
+    }
+    if l != Vec3::ZERO {
+        s.light.position += l * speed;
+    }
+}
+
+fn turn(s: &mut State, dx: f32, dy: f32) {
+    let (right, _, _) = s.camera.frame();
+    let yaw = Quat::from_axis_angle(s.camera.up.normalize(), -dx * 0.005);
+    let pitch = Quat::from_axis_angle(right, -dy * 0.005);
+    let q = yaw * pitch;
+    if s.orbit {
+        let v = s.camera.position - s.camera.target;
+        let nv = q * v;
+        if nv.normalize().cross(s.camera.up.normalize()).length() > 0.02 {
+            s.camera.position = s.camera.target + nv;
+        }
+    } else {
+        let v = s.camera.target - s.camera.position;
+        let nv = q * v;
+        if nv.normalize().cross(s.camera.up.normalize()).length() > 0.02 {
+            s.camera.target = s.camera.position + nv;
+        }
+    }
+}
+
+impl ApplicationHandler for App<'_> {
+    fn resumed(&mut self, event_loop: &ActiveEventLoop) {
+        if self.state.is_some() {
+            return;
+        }
+        match self.init(event_loop) {
+            Ok(s) => self.state = Some(s),
+            Err(e) => {
+                self.error = Some(e);
+                event_loop.exit();
+            }
+        }
+    }
+
+    fn window_event(&mut self, event_loop: &ActiveEventLoop, _id: WindowId, event: WindowEvent) {
+        let mut screenshot = false;
+        if let Some(s) = self.state.as_mut() {
+            match event {
+                WindowEvent::CloseRequested => event_loop.exit(),
+                WindowEvent::Resized(size) => {
+                    s.config.width = size.width.max(1);
+                    s.config.height = size.height.max(1);
+                    s.surface.configure(&s.gpu.device, &s.config);
+                    s.camera.width = s.config.width;
+                    s.camera.height = s.config.height;
+                }
+                WindowEvent::KeyboardInput { event, .. } => {
+                    if let PhysicalKey::Code(code) = event.physical_key {
+                        if event.state == ElementState::Pressed {
+                            s.keys.insert(code);
+                            if !event.repeat {
+                                match code {
+                                    KeyCode::Escape => event_loop.exit(),
+                                    KeyCode::KeyV => s.mode = s.mode.next(),
+                                    KeyCode::KeyO => s.orbit = !s.orbit,
+                                    KeyCode::KeyH => {
+                                        s.renderer.shadows = !s.renderer.shadows;
+                                        s.renderer.invalidate();
+                                    }
+                                    KeyCode::BracketLeft => s.level = s.level.saturating_sub(1),
+                                    KeyCode::BracketRight => {
+                                        s.level = (s.level + 1)
+                                            .min(s.renderer.levels().saturating_sub(1))
+                                    }
+                                    KeyCode::KeyP => screenshot = true,
+                                    KeyCode::KeyR => {
+                                        let (w, h) = (s.camera.width, s.camera.height);
+                                        s.camera = self.start_camera;
+                                        s.camera.width = w;
+                                        s.camera.height = h;
+                                        s.light = self.start_light;
+                                    }
+                                    _ => {}
+                                }
+                            }
+                        } else {
+                            s.keys.remove(&code);
+                        }
+                    }
+                }
+                WindowEvent::MouseInput { state, button, .. } => {
+                    s.drag = (state == ElementState::Pressed).then_some((button, s.cursor));
+                }
+                WindowEvent::CursorMoved { position, .. } => {
+                    s.cursor = (position.x, position.y);
+                    if let Some((button, last)) = s.drag {
+                        let (dx, dy) = ((position.x - last.0) as f32, (position.y - last.1) as f32);
+                        s.drag = Some((button, s.cursor));
+                        match button {
+                            MouseButton::Left => turn(s, dx, dy),
+                            MouseButton::Right => {
+                                // Drag the light in the camera's image plane.
+                                let (right, up, _) = s.camera.frame();
+                                let d = (s.light.position - s.camera.position).length();
+                                let k = d * 2.0 * (0.5 * s.camera.fovy_deg.to_radians()).tan()
+                                    / s.camera.height as f32;
+                                s.light.position += (right * dx - up * dy) * k;
+                            }
+                            _ => {}
+                        }
+                    }
+                }
+                WindowEvent::RedrawRequested => {
+                    if let Err(e) = self.frame() {
+                        self.error = Some(e);
+                        event_loop.exit();
+                    }
+                }
+                _ => {}
+            }
+        }
+        if screenshot {
+            if let Err(e) = self.screenshot() {
+                eprintln!("view: screenshot failed: {e:#}");
+            }
+        }
+    }
+
+    fn about_to_wait(&mut self, _event_loop: &ActiveEventLoop) {
+        if let Some(s) = &self.state {
+            s.window.request_redraw();
+        }
+    }
+}
