@@ -1,6 +1,7 @@
-//! Frustum culling of basis functions with the R-tree's nodes (section 4.1): a node whose box
-//! (which bounds its points' support spheres) lies outside a frustum plane is skipped with its
-//! whole subtree; in the leaves that remain, each support sphere is tested.
+//! Frustum culling of the flat basis functions with the R-tree's nodes (section 4.1): a node
+//! whose box (which bounds its points' own support spheres, never smaller than the flat ones)
+//! lies outside a frustum plane is skipped with its whole subtree; in the leaves that remain,
+//! each flat support sphere is tested.
 
 use glam::{Mat4, Vec3, Vec4};
 use mlt_format::IndexedBasis;
@@ -43,10 +44,16 @@ impl Frustum {
     }
 }
 
-/// Indices of the basis functions of every level whose support sphere meets the frustum, in
-/// increasing order within each level (levels coarsest first), written into `out`. Returns the
-/// number of R-tree nodes visited.
-pub fn visible_points(ib: &IndexedBasis, frustum: &Frustum, out: &mut Vec<u32>) -> usize {
+/// Indices of the points of every level whose support sphere of radius `radius` (at most each
+/// point's own radius: the flat basis's) meets the frustum, in increasing order within each
+/// level (levels coarsest first), written into `out`. Returns the number of R-tree nodes
+/// visited.
+pub fn visible_points(
+    ib: &IndexedBasis,
+    frustum: &Frustum,
+    radius: f32,
+    out: &mut Vec<u32>,
+) -> usize {
     out.clear();
     let b = &ib.basis;
     let mut visited = 0;
@@ -69,7 +76,7 @@ pub fn visible_points(ib: &IndexedBasis, frustum: &Frustum, out: &mut Vec<u32>) 
                 let first = tree.node_first[i] as usize;
                 for &j in &tree.items[first..first + count] {
                     let ju = j as usize;
-                    if frustum.meets_sphere(Vec3::from(b.positions[ju]), b.radii[ju]) {
+                    if frustum.meets_sphere(Vec3::from(b.positions[ju]), radius.min(b.radii[ju])) {
                         out.push(j);
                     }
                 }
@@ -113,14 +120,17 @@ mod tests {
         .unwrap();
         let f = Frustum::from_view_proj(&(cam.projection_matrix(0.1, 50.0) * cam.view_matrix()));
         let mut out = Vec::new();
-        visible_points(&ib, &f, &mut out);
-        let brute: Vec<u32> = (0..400u32)
-            .filter(|&j| {
-                let j = j as usize;
-                f.meets_sphere(Vec3::from(ib.basis.positions[j]), ib.basis.radii[j])
-            })
-            .collect();
-        assert_eq!(out, brute);
-        assert!(!out.is_empty() && out.len() < 400, "{}", out.len());
+        for radius in [0.25, f32::INFINITY] {
+            visible_points(&ib, &f, radius, &mut out);
+            let brute: Vec<u32> = (0..400u32)
+                .filter(|&j| {
+                    let j = j as usize;
+                    let r = radius.min(ib.basis.radii[j]);
+                    f.meets_sphere(Vec3::from(ib.basis.positions[j]), r)
+                })
+                .collect();
+            assert_eq!(out, brute);
+            assert!(!out.is_empty() && out.len() < 400, "{}", out.len());
+        }
     }
 }
