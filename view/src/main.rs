@@ -87,6 +87,13 @@ struct Cli {
     /// Without --headless: write the CPU stage timings (JSON) here.
     #[arg(long)]
     timings_out: Option<PathBuf>,
+    /// Window mode, for scripts and tests: after N frames save a screenshot of every view
+    /// (window-MODE.png in --screenshot-dir) and close.
+    #[arg(long)]
+    exit_after_frames: Option<u32>,
+    /// Where the window saves screenshots (P key).
+    #[arg(long, default_value = ".")]
+    screenshot_dir: PathBuf,
 }
 
 fn vec3(s: &str) -> Result<Vec3, String> {
@@ -274,6 +281,8 @@ fn main() -> Result<()> {
         light,
         bounds: (lo, hi),
         shadow_res: cli.shadow_res,
+        exit_after_frames: cli.exit_after_frames,
+        screenshot_dir: cli.screenshot_dir.clone(),
     })
 }
 

@@ -25,7 +25,7 @@ use winit::window::{Window, WindowId};
 use crate::camera::Camera;
 use crate::gpu::mesh::GpuMesh;
 use crate::gpu::{Gpu, Renderer, ViewMode};
-use crate::images::{luminance, RgbImage, ToneMap};
+use crate::images::{luminance, ToneMap};
 use crate::light::Light;
 use crate::relight::{Relight, StageTimes};
 
@@ -39,6 +39,10 @@ pub struct WindowSetup<'a> {
     pub light: Light,
     pub bounds: (Vec3, Vec3),
     pub shadow_res: u32,
+    /// For scripts and tests: after this many frames, save a screenshot of every view mode
+    /// (`window-MODE.png` in `screenshot_dir`) and close.
+    pub exit_after_frames: Option<u32>,
+    pub screenshot_dir: std::path::PathBuf,
 }
 
 /// True when a display server can be reached (this build talks X11; Wayland sessions provide
@@ -66,7 +70,9 @@ pub fn run(setup: WindowSetup<'_>) -> Result<()> {
         state: None,
         error: None,
     };
-    event_loop.run_app(&mut app).context("the window's event loop")?;
+    event_loop
+        .run_app(&mut app)
+        .context("the window's event loop")?;
     match app.error {
         Some(e) => Err(e),
         None => Ok(()),
@@ -102,6 +108,7 @@ struct State {
     stage: StageTimes,
     flat_max: f32,
     screenshots: u32,
+    frames: u32,
     scale: f32,
 }
 
@@ -111,12 +118,15 @@ impl App<'_> {
         let attrs = Window::default_attributes()
             .with_title(self.setup.title.clone())
             .with_inner_size(winit::dpi::PhysicalSize::new(cam.width, cam.height));
-        let window = Arc::new(event_loop.create_window(attrs).context("creating the window")?);
-        let instance = wgpu::Instance::new(
-            wgpu::InstanceDescriptor::new_with_display_handle_from_env(Box::new(
-                event_loop.owned_display_handle(),
-            )),
+        let window = Arc::new(
+            event_loop
+                .create_window(attrs)
+                .context("creating the window")?,
         );
+        let instance =
+            wgpu::Instance::new(wgpu::InstanceDescriptor::new_with_display_handle_from_env(
+                Box::new(event_loop.owned_display_handle()),
+            ));
         let surface = instance
             .create_surface(window.clone())
             .context("creating the window's surface")?;
@@ -177,6 +187,7 @@ impl App<'_> {
             stage: StageTimes::default(),
             flat_max: 1.0,
             screenshots: 0,
+            frames: 0,
             scale: (hi - lo).length().max(f32::MIN_POSITIVE),
         };
         eprintln!(
@@ -216,7 +227,8 @@ impl App<'_> {
             s.tone_dirty = false;
         }
         let output = match s.surface.get_current_texture() {
-            wgpu::CurrentSurfaceTexture::Success(t) | wgpu::CurrentSurfaceTexture::Suboptimal(t) => t,
+            wgpu::CurrentSurfaceTexture::Success(t)
+            | wgpu::CurrentSurfaceTexture::Suboptimal(t) => t,
             other => {
                 // Lost or outdated: reconfigure and try on the next frame.
                 let _ = other;
@@ -238,6 +250,7 @@ impl App<'_> {
         )?;
         s.gpu.queue.present(output);
 
+        s.frames += 1;
         s.frame_times.push(dt as f64);
         if s.frame_times.len() >= 10 {
             let mean = s.frame_times.iter().sum::<f64>() / s.frame_times.len() as f64;
@@ -258,23 +271,54 @@ impl App<'_> {
         Ok(())
     }
 
-    fn screenshot(&mut self) -> Result<()> {
+    /// Saves what the window shows (the display pass rendered offscreen, so debug views are
+    /// saved as seen) as `NAME.png`, and the linear final buffer as `NAME-final.exr`.
+    fn screenshot(&mut self, name: &str) -> Result<()> {
         let Some(s) = self.state.as_mut() else {
             return Ok(());
         };
+        let dir = &self.setup.screenshot_dir;
+        let (w, h) = (s.camera.width, s.camera.height);
+        let texture = s.gpu.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("screenshot"),
+            size: wgpu::Extent3d {
+                width: w,
+                height: h,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::Rgba8Unorm,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+            view_formats: &[],
+        });
+        let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
+        s.renderer.display(
+            &s.gpu,
+            &view,
+            wgpu::TextureFormat::Rgba8Unorm,
+            &s.tone,
+            s.mode,
+            s.level,
+            s.flat_max,
+        )?;
+        let raw = crate::gpu::readback::read_raw(&s.gpu, &texture, 4)?;
+        let rgb: Vec<u8> = raw
+            .chunks_exact(4)
+            .flat_map(|c| [c[0], c[1], c[2]])
+            .collect();
+        let img = image::RgbImage::from_raw(w, h, rgb).context("screenshot size")?;
+        let png = dir.join(format!("{name}.png"));
+        let mut bytes = std::io::Cursor::new(Vec::new());
+        img.write_to(&mut bytes, image::ImageFormat::Png)
+            .with_context(|| format!("encoding {}", png.display()))?;
+        mlt_format::file::write_atomic(&png, bytes.get_ref())
+            .with_context(|| format!("writing {}", png.display()))?;
         let buffers = s.renderer.read_buffers(&s.gpu)?;
-        let img: &RgbImage = match s.mode {
-            ViewMode::Direct => &buffers.direct,
-            ViewMode::Indirect => &buffers.indirect,
-            _ => &buffers.final_,
-        };
-        let name = format!("screenshot-{:03}", s.screenshots);
-        s.screenshots += 1;
-        img.write_png(std::path::Path::new(&format!("{name}.png")))?;
-        buffers
-            .final_
-            .write_exr(std::path::Path::new(&format!("{name}-final.exr")))?;
-        eprintln!("view: wrote {name}.png and {name}-final.exr");
+        let exr = dir.join(format!("{name}-final.exr"));
+        buffers.final_.write_exr(&exr)?;
+        eprintln!("view: wrote {} and {}", png.display(), exr.display());
         Ok(())
     }
 }
@@ -395,8 +439,8 @@ impl ApplicationHandler for App<'_> {
                                     }
                                     KeyCode::BracketLeft => s.level = s.level.saturating_sub(1),
                                     KeyCode::BracketRight => {
-                                        s.level = (s.level + 1)
-                                            .min(s.renderer.levels().saturating_sub(1))
+                                        s.level =
+                                            (s.level + 1).min(s.renderer.levels().saturating_sub(1))
                                     }
                                     KeyCode::KeyP => screenshot = true,
                                     KeyCode::KeyR => {
@@ -446,9 +490,31 @@ impl ApplicationHandler for App<'_> {
             }
         }
         if screenshot {
-            if let Err(e) = self.screenshot() {
+            let name = self.state.as_mut().map(|s| {
+                s.screenshots += 1;
+                format!("screenshot-{:03}", s.screenshots - 1)
+            });
+            if let Err(e) = self.screenshot(&name.unwrap_or_default()) {
                 eprintln!("view: screenshot failed: {e:#}");
             }
+        }
+        let done = match (&self.state, self.setup.exit_after_frames) {
+            (Some(s), Some(n)) => s.frames >= n,
+            _ => false,
+        };
+        if done {
+            for mode in ViewMode::ALL {
+                if let Some(s) = self.state.as_mut() {
+                    s.mode = mode;
+                    s.level = s.renderer.levels() / 2;
+                }
+                let name = format!("window-{}", mode.name().replace(' ', "-"));
+                if let Err(e) = self.screenshot(&name) {
+                    self.error = Some(e);
+                    break;
+                }
+            }
+            event_loop.exit();
         }
     }
 

@@ -63,8 +63,7 @@ fn render(
     );
     let flat = relighter.relight(&light).flat.clone();
     let gpu = gpu();
-    let mut renderer =
-        Renderer::new(&gpu, &GpuMesh::from_scene(&scene), &ib.basis, 512).unwrap();
+    let mut renderer = Renderer::new(&gpu, &GpuMesh::from_scene(&scene), &ib.basis, 512).unwrap();
     renderer.set_coefficients(&gpu, &flat);
     renderer.render(&gpu, &ib, &camera, &light, true).unwrap();
     let buffers = renderer.read_buffers(&gpu).unwrap();
@@ -157,7 +156,10 @@ fn closed_sphere_renders_uniform_analytic_indirect_and_direct_radiance() {
     let mut sum2 = 0.0f64;
     let mut n = 0.0f64;
     for (k, p) in g.position.iter().enumerate() {
-        assert_eq!(p[3], 1.0, "the camera is inside the sphere: every pixel is covered");
+        assert_eq!(
+            p[3], 1.0,
+            "the camera is inside the sphere: every pixel is covered"
+        );
         for c in 0..3 {
             let ind = buffers.indirect.pixels[k][c];
             assert!(
@@ -177,7 +179,10 @@ fn closed_sphere_renders_uniform_analytic_indirect_and_direct_radiance() {
     }
     let mean = sum / n;
     let cv = ((sum2 / n - mean * mean).max(0.0)).sqrt() / mean;
-    assert!(cv < 0.01, "indirect not uniform: coefficient of variation {cv}");
+    assert!(
+        cv < 0.01,
+        "indirect not uniform: coefficient of variation {cv}"
+    );
 }
 
 #[test]
@@ -227,7 +232,10 @@ fn cornell_ceiling_is_lit_only_indirectly_and_walls_bleed_colour() {
     }
     assert!(count > 50 && floor_count > 50 && red_n > 20 && green_n > 20);
     let (ceiling, floor) = (ceiling / count as f32, floor / floor_count as f32);
-    assert_eq!(ceiling_direct, 0.0, "the ceiling is outside the spot's cone");
+    assert_eq!(
+        ceiling_direct, 0.0,
+        "the ceiling is outside the spot's cone"
+    );
     assert!(
         ceiling > 0.02 * floor,
         "ceiling indirect {ceiling} vs floor {floor}"
@@ -270,7 +278,15 @@ fn headless_cli_writes_finite_non_black_images_and_timings() {
     let out = d.join("out");
     let r = Command::new(env!("CARGO_BIN_EXE_view"))
         .arg(&f)
-        .args(["--headless", "--width", "64", "--height", "48", "--frames", "3"])
+        .args([
+            "--headless",
+            "--width",
+            "64",
+            "--height",
+            "48",
+            "--frames",
+            "3",
+        ])
         .arg("--out")
         .arg(&out)
         .output()
@@ -286,11 +302,12 @@ fn headless_cli_writes_finite_non_black_images_and_timings() {
     let png = std::fs::read(out.join("final.png")).unwrap();
     assert_eq!(&png[1..4], b"PNG");
     let t: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("timings.json")).unwrap())
-            .unwrap();
+        serde_json::from_str(&std::fs::read_to_string(out.join("timings.json")).unwrap()).unwrap();
     assert_eq!(t["frames"], 3);
     assert!(t["adapter"]["name"].as_str().is_some_and(|s| !s.is_empty()));
-    assert!(t["cpu_median_ms"]["total"].as_f64().is_some_and(|v| v > 0.0));
+    assert!(t["cpu_median_ms"]["total"]
+        .as_f64()
+        .is_some_and(|v| v > 0.0));
     let _ = std::fs::remove_dir_all(&d);
 }
 
@@ -317,5 +334,48 @@ fn window_without_a_display_says_so_and_suggests_headless() {
     assert!(!r.status.success());
     let err = String::from_utf8_lossy(&r.stderr);
     assert!(err.contains("--headless"), "{err}");
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+#[test]
+fn window_opens_under_xvfb_and_saves_every_view() {
+    let d = temp("window");
+    let f = d.join("cornell.mlt");
+    bake_to(
+        &f,
+        "builtin:cornell",
+        BakeOptions {
+            receiver_levels: Some(3),
+            coarse_count: Some(30),
+            gather_rays: Some(32),
+            ..Default::default()
+        },
+    );
+    // xvfb-run comes with scripts/setup.sh (Debian package xvfb).
+    let r = Command::new("xvfb-run")
+        .args(["-a", "-s", "-screen 0 640x480x24"])
+        .arg(env!("CARGO_BIN_EXE_view"))
+        .arg(&f)
+        .args([
+            "--width",
+            "96",
+            "--height",
+            "72",
+            "--exit-after-frames",
+            "3",
+        ])
+        .arg("--screenshot-dir")
+        .arg(&d)
+        .output()
+        .expect("xvfb-run (scripts/setup.sh installs it)");
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    for mode in ["final", "direct", "indirect", "level-used", "basis-points"] {
+        let img = image::open(d.join(format!("window-{mode}.png")))
+            .unwrap()
+            .to_rgb8();
+        assert_eq!(img.dimensions(), (96, 72), "{mode}");
+        let lit = img.pixels().filter(|p| p.0.iter().any(|&c| c > 10)).count();
+        assert!(lit > 96 * 72 / 4, "{mode}: only {lit} lit pixels");
+    }
     let _ = std::fs::remove_dir_all(&d);
 }

@@ -328,8 +328,7 @@ pub fn reversed_view_proj(camera: &Camera, planes: (f32, f32)) -> Mat4 {
         camera.aspect(),
         planes.1,
         planes.0,
-    )
-        * camera.view_matrix()
+    ) * camera.view_matrix()
 }
 
 impl Renderer {
@@ -422,11 +421,15 @@ impl Renderer {
             )
         };
         let max_dim = device.limits().max_texture_dimension_2d;
-        let white = view(&make_texture(1, 1, &half_texels(&mlt_scenes::Texture {
-            width: 1,
-            height: 1,
-            texels: vec![[1.0; 3]],
-        })));
+        let white = view(&make_texture(
+            1,
+            1,
+            &half_texels(&mlt_scenes::Texture {
+                width: 1,
+                height: 1,
+                texels: vec![[1.0; 3]],
+            }),
+        ));
         let texture_views: Vec<Option<wgpu::TextureView>> = mesh
             .textures
             .iter()
@@ -1099,8 +1102,11 @@ impl Renderer {
                         light: [p.x, p.y, p.z, f.far],
                         pad: [0.0; 44],
                     };
-                    gpu.queue
-                        .write_buffer(&self.face_buffer, k as u64 * face_size, bytemuck::bytes_of(&u));
+                    gpu.queue.write_buffer(
+                        &self.face_buffer,
+                        k as u64 * face_size,
+                        bytemuck::bytes_of(&u),
+                    );
                 }
                 let mut enc = new_encoder("shadow");
                 for k in 0..f.view_proj.len() {
@@ -1122,7 +1128,12 @@ impl Renderer {
                     pass.set_pipeline(&self.shadow_pipeline);
                     pass.set_bind_group(0, &self.face_bgs[k], &[]);
                     pass.set_vertex_buffer(0, self.vertex_buffer.slice(..));
-                    let total: u32 = self.draws.iter().map(|d| d.first + d.count).max().unwrap_or(0);
+                    let total: u32 = self
+                        .draws
+                        .iter()
+                        .map(|d| d.first + d.count)
+                        .max()
+                        .unwrap_or(0);
                     if total > 0 {
                         pass.draw(0..total, 0..1);
                     }
@@ -1225,14 +1236,21 @@ impl Renderer {
         Ok(GBuffer {
             width: t.width,
             height: t.height,
-            position: p.chunks_exact(4).map(|c| [c[0], c[1], c[2], c[3]]).collect(),
+            position: p
+                .chunks_exact(4)
+                .map(|c| [c[0], c[1], c[2], c[3]])
+                .collect(),
             normal: n.chunks_exact(4).map(|c| [c[0], c[1], c[2]]).collect(),
             albedo: a,
         })
     }
 
     fn display_pipeline(&mut self, gpu: &Gpu, format: wgpu::TextureFormat) -> usize {
-        if let Some(k) = self.display_pipelines.iter().position(|(f, _)| *f == format) {
+        if let Some(k) = self
+            .display_pipelines
+            .iter()
+            .position(|(f, _)| *f == format)
+        {
             return k;
         }
         let layout = gpu
@@ -1330,6 +1348,7 @@ impl Renderer {
         level: usize,
         flat_max_luminance: f32,
     ) -> Result<(), GpuError> {
+        let scope = gpu.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let k = self.display_pipeline(gpu, format);
         let kp = self.points_pipeline(gpu, format);
         let encode_srgb = if format.is_srgb() { 0.0 } else { 1.0 };
@@ -1374,16 +1393,7 @@ impl Renderer {
             let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("display"),
                 color_attachments: &[clear_attachment(target_view)],
-                depth_stencil_attachment: (mode == ViewMode::Points).then_some(
-                    wgpu::RenderPassDepthStencilAttachment {
-                        view: &depth_view,
-                        depth_ops: Some(wgpu::Operations {
-                            load: wgpu::LoadOp::Load,
-                            store: wgpu::StoreOp::Store,
-                        }),
-                        stencil_ops: None,
-                    },
-                ),
+                depth_stencil_attachment: None,
                 timestamp_writes: None,
                 occlusion_query_set: None,
                 multiview_mask: None,
@@ -1391,14 +1401,41 @@ impl Renderer {
             pass.set_pipeline(&self.display_pipelines[k].1);
             pass.set_bind_group(0, &t.display_bg, &[]);
             pass.draw(0..3, 0..1);
-            if mode == ViewMode::Points && !range.is_empty() {
-                pass.set_pipeline(&self.points_pipelines[kp].1);
-                pass.set_bind_group(0, &self.points_bg, &[]);
-                pass.draw(0..4, 0..range.len() as u32);
-            }
+        }
+        if mode == ViewMode::Points && !range.is_empty() {
+            // The points over the image, depth-tested against the G-buffer's depth.
+            let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("points"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: target_view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Load,
+                        store: wgpu::StoreOp::Store,
+                    },
+                })],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: &depth_view,
+                    depth_ops: Some(wgpu::Operations {
+                        load: wgpu::LoadOp::Load,
+                        store: wgpu::StoreOp::Store,
+                    }),
+                    stencil_ops: None,
+                }),
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            pass.set_pipeline(&self.points_pipelines[kp].1);
+            pass.set_bind_group(0, &self.points_bg, &[]);
+            pass.draw(0..4, 0..range.len() as u32);
         }
         gpu.queue.submit([enc.finish()]);
-        Ok(())
+        match pollster::block_on(scope.pop()) {
+            Some(e) => Err(GpuError::Validation(e.to_string())),
+            None => Ok(()),
+        }
     }
 }
 
