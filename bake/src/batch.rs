@@ -40,6 +40,10 @@ pub struct JobSpec {
     pub epsilon: Option<f32>,
     pub bounce_epsilon: Option<f32>,
     pub bounces: Option<u32>,
+    /// Choose the bounce count from the spectral radius (`bounces` is then the cap).
+    #[serde(default)]
+    pub auto_bounces: bool,
+    pub bounce_tolerance: Option<f64>,
     pub gather_rays: Option<u32>,
     pub max_misses: Option<u32>,
     #[serde(default)]
@@ -60,6 +64,8 @@ impl JobSpec {
             bounce_epsilon: self.bounce_epsilon,
             sender_levels: self.sender_levels,
             bounces: self.bounces,
+            auto_bounces: self.auto_bounces,
+            bounce_tolerance: self.bounce_tolerance,
             gather_rays: self.gather_rays,
             bounces_on_all_receivers: self.bounces_on_all_receivers,
             basis_only: self.basis_only,
@@ -170,6 +176,7 @@ pub fn stats_json(file: &Path, file_bytes: u64, out: &BakeOutput) -> serde_json:
             m.timings = out.transport_timings.clone();
             m
         }),
+        "report": out.contents.transport.as_ref().and_then(|t| t.report.as_ref()),
         "warnings": &out.warnings,
     })
 }

@@ -9,7 +9,7 @@ use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use mlt_bake::batch::{read_jobs, run_batch, stats_json, summary_markdown, BatchSettings};
-use mlt_bake::report::{bake_table, info_text, transport_table};
+use mlt_bake::report::{bake_table, estimate_table, info_text, transport_table};
 use mlt_bake::table1::{compare_json, compare_text, our_row, paper_row, Table1Row};
 use mlt_bake::{bake_scene, BakeOptions, Observer};
 use mlt_format::{BakedFile, WriteOptions};
@@ -138,9 +138,15 @@ struct BakeArgs {
     /// Sender levels, the coarsest of the receiver levels (paper: 3).
     #[arg(long)]
     sender_levels: Option<u32>,
-    /// Most bounces of the Neumann series S = T + T^2 + ... (paper: 4).
+    /// Bounces of the Neumann series S = T + T^2 + ...: a count (paper: 4), or `auto` to
+    /// choose it from the spectral-radius estimate so that the bounces left out carry at
+    /// most --bounce-tolerance of the indirect light (`auto:N` caps it at N, default 1000).
+    #[arg(long, value_name = "N|auto|auto:N", value_parser = parse_bounces)]
+    bounces: Option<BounceArg>,
+    /// Fraction of the indirect light the series may leave out (default 0.01): the target of
+    /// --bounces auto, and the threshold above which a fixed count is warned about.
     #[arg(long)]
-    bounces: Option<u32>,
+    bounce_tolerance: Option<f64>,
     /// Rays per receiver gather (Eq. 16).
     #[arg(long)]
     gather_rays: Option<u32>,
@@ -240,6 +246,39 @@ impl Observer for Reporter {
     }
 }
 
+/// `--bounces`: a count or `auto[:cap]`.
+#[derive(Clone, Copy, Debug)]
+struct BounceArg {
+    auto: bool,
+    count: Option<u32>,
+}
+
+fn parse_bounces(s: &str) -> Result<BounceArg, String> {
+    let s = s.trim();
+    let count = |t: &str| {
+        t.trim()
+            .parse::<u32>()
+            .map_err(|_| format!("'{t}' is not a bounce count (a whole number >= 1)"))
+    };
+    match s.strip_prefix("auto") {
+        Some("") => Ok(BounceArg {
+            auto: true,
+            count: None,
+        }),
+        Some(rest) => match rest.strip_prefix(':') {
+            Some(cap) => Ok(BounceArg {
+                auto: true,
+                count: Some(count(cap)?),
+            }),
+            None => Err(format!("'{s}' is not N, auto or auto:N")),
+        },
+        None => Ok(BounceArg {
+            auto: false,
+            count: Some(count(s)?),
+        }),
+    }
+}
+
 fn parse_shard(s: &str) -> Result<(u32, u32), String> {
     let (i, n) = s
         .split_once('/')
@@ -274,6 +313,9 @@ fn run_merge(shards: &[PathBuf], output: &Path, compress: bool, quiet: bool) -> 
     if !quiet {
         if let Some(t) = &merged.transport {
             eprint!("{}", transport_table(&t.meta, None));
+            if let Some(r) = &t.report {
+                eprint!("{}", estimate_table(r));
+            }
         }
         eprintln!(
             "merged {} shards: {} ({:.2} MB)",
@@ -324,7 +366,9 @@ fn run_bake(args: BakeArgs) -> Result<()> {
         epsilon: args.epsilon,
         bounce_epsilon: args.bounce_epsilon,
         sender_levels: args.sender_levels,
-        bounces: args.bounces,
+        bounces: args.bounces.and_then(|b| b.count),
+        auto_bounces: args.bounces.is_some_and(|b| b.auto),
+        bounce_tolerance: args.bounce_tolerance,
         gather_rays: args.gather_rays,
         bounces_on_all_receivers: args.bounces_on_all_receivers,
         basis_only: args.basis_only,
@@ -373,6 +417,9 @@ fn run_bake(args: BakeArgs) -> Result<()> {
                 "{}",
                 transport_table(&t.meta, out.transport_timings.as_ref())
             );
+            if let Some(r) = &t.report {
+                eprint!("{}", estimate_table(r));
+            }
         }
     }
     let json = stats_json(&output, size, &out);

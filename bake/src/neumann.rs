@@ -52,6 +52,12 @@ pub struct SeriesReport {
     pub sum_norm: Vec<f64>,
     /// Per bounce, the sum of the norms of the links above epsilon.
     pub kept_sum_norm: Vec<f64>,
+    /// Per bounce and colour channel, the irradiance `sum_i sum_j n_i . X_b[i][j]` over
+    /// level-0 receivers `i` and level-0 senders `j`: the bounce's light at the coarsest
+    /// points under unit irradiance at every coarsest sender (for a closed scene of uniform
+    /// albedo `rho`, `n_0 rho^b`). Computed (before truncation) and kept.
+    pub energy: Vec<[f64; 3]>,
+    pub kept_energy: Vec<[f64; 3]>,
     pub spectral_radius: f64,
     /// The series was stopped early because a bounce's links all fell below epsilon.
     pub converged_early: bool,
@@ -101,6 +107,27 @@ pub fn spectral_radius(ib: &IndexedBasis, t: &ReceiverLinks) -> f64 {
     rho
 }
 
+/// `sum_j n . v_j` per colour channel over the links `(j, v_j)` of `row` to senders `j < n0`.
+fn row_energy<'a>(
+    n: [f32; 3],
+    n0: usize,
+    row: impl IntoIterator<Item = (u32, &'a [f32; LINK_DIM])>,
+) -> [f64; 3] {
+    let mut e = [0.0f64; 3];
+    for (s, v) in row {
+        if (s as usize) < n0 {
+            for (c, ec) in e.iter_mut().enumerate() {
+                *ec += (n[0] * v[3 * c] + n[1] * v[3 * c + 1] + n[2] * v[3 * c + 2]) as f64;
+            }
+        }
+    }
+    e
+}
+
+fn add3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+}
+
 /// Computes bounces 2..=`bounces` and returns them summed per row of T, with a report.
 pub fn series(
     ib: &IndexedBasis,
@@ -140,6 +167,14 @@ pub fn series(
     report.max_norm.push(m1);
     report.sum_norm.push(s1);
     report.kept_sum_norm.push(s1);
+    let e1 = first.iter().enumerate().fold([0.0; 3], |acc, (j, row)| {
+        add3(
+            acc,
+            row_energy(ib.basis.normals[j], n0, row.iter().map(|(s, v)| (*s, v))),
+        )
+    });
+    report.energy.push(e1);
+    report.kept_energy.push(e1);
     let mut total: Rows = vec![Vec::new(); out_rows];
     // Level-0 rows of the previous bounce: the next bounce's sender input.
     let mut prev = first;
@@ -159,7 +194,7 @@ pub fn series(
                     .collect()
             })
             .collect();
-        let products: Vec<(Row, f64, f64)> = (0..out_rows)
+        let products: Vec<(Row, f64, f64, [f64; 3])> = (0..out_rows)
             .into_par_iter()
             .map_init(
                 || {
@@ -169,8 +204,8 @@ pub fn series(
                         vec![false; senders],
                     )
                 },
-                |(acc, touched, mark), row| {
-                    let i = t.rows[row] as usize;
+                |(acc, touched, mark), row_index| {
+                    let i = t.rows[row_index] as usize;
                     let (ks, kv) = t.row(i);
                     for (j, k) in ks.iter().zip(kv) {
                         let j = *j as usize;
@@ -194,6 +229,15 @@ pub fn series(
                     touched.sort_unstable();
                     let (mut mx, mut sm) = (0.0f64, 0.0f64);
                     let mut row = Vec::new();
+                    let energy = if row_index < n0 {
+                        row_energy(
+                            ib.basis.normals[row_index],
+                            n0,
+                            touched.iter().map(|&s| (s, &acc[s as usize])),
+                        )
+                    } else {
+                        [0.0; 3]
+                    };
                     for &s in touched.iter() {
                         let v = acc[s as usize];
                         let nrm = link_norm(&v);
@@ -206,7 +250,7 @@ pub fn series(
                         mark[s as usize] = false;
                     }
                     touched.clear();
-                    (row, mx, sm)
+                    (row, mx, sm, energy)
                 },
             )
             .collect();
@@ -214,8 +258,22 @@ pub fn series(
         let sm: f64 = products.iter().map(|p| p.2).sum();
         report.max_norm.push(mx);
         report.sum_norm.push(sm);
+        report
+            .energy
+            .push(products.iter().fold([0.0; 3], |a, p| add3(a, p.3)));
         report.bounces = b;
         let rows: Rows = products.into_iter().map(|p| p.0).collect();
+        let kept_energy = rows
+            .iter()
+            .take(n0)
+            .enumerate()
+            .fold([0.0; 3], |a, (j, row)| {
+                add3(
+                    a,
+                    row_energy(ib.basis.normals[j], n0, row.iter().map(|(s, v)| (*s, v))),
+                )
+            });
+        report.kept_energy.push(kept_energy);
         let kept: usize = rows.iter().map(|r| r.len()).sum();
         report.kept_sum_norm.push(norms(&rows).1);
         on_bounce(b, kept);

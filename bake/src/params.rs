@@ -6,6 +6,7 @@ use mlt_scenes::BakeSettings;
 
 use crate::error::BakeError;
 use crate::placement::Coarse;
+use crate::transport::{BouncePolicy, DEFAULT_BOUNCE_TOLERANCE};
 
 /// The paper's values (section 2.3, DESIGN.md).
 pub const DEFAULT_LEVELS: u32 = 6;
@@ -21,6 +22,9 @@ pub const SKIPPED_BOUNCES: u32 = 3;
 pub const DEFAULT_EPSILON: f32 = 0.025;
 pub const DEFAULT_SENDER_LEVELS: u32 = 3;
 pub const DEFAULT_BOUNCES: u32 = 4;
+/// The cap of `--bounces auto` when none is given: enough for a spectral radius of 0.995 at
+/// the default 1 % tolerance (0.995^919 < 0.01).
+pub const DEFAULT_AUTO_BOUNCE_CAP: u32 = 1000;
 /// Rays per receiver gather (the paper does not say; the tech report's radiosity used 512).
 pub const DEFAULT_GATHER_RAYS: u32 = 256;
 /// More levels than this would need more than 2^(2*16) points per coarse point.
@@ -41,8 +45,15 @@ pub struct BakeOptions {
     pub bounce_epsilon: Option<f32>,
     /// Sender levels (paper: 3; at most the receiver levels).
     pub sender_levels: Option<u32>,
-    /// Most bounces of the Neumann series (paper: 4).
+    /// Most bounces of the Neumann series (paper: 4); with `auto_bounces`, the cap.
     pub bounces: Option<u32>,
+    /// Choose the number of bounces from the spectral-radius estimate so that the series
+    /// leaves out at most `bounce_tolerance` of the indirect light (capped by `bounces`,
+    /// default [`DEFAULT_AUTO_BOUNCE_CAP`]; the manifest's count is then ignored).
+    pub auto_bounces: bool,
+    /// Fraction of the indirect light the series may leave out (default 1 %): the target of
+    /// `auto_bounces`, the warning threshold of a fixed count.
+    pub bounce_tolerance: Option<f64>,
     /// Rays per receiver gather.
     pub gather_rays: Option<u32>,
     /// Bounces 2 and later on every refined receiver, not only the coarsest.
@@ -140,7 +151,11 @@ pub fn resolve_transport(
             .or(scene.sender_levels)
             .unwrap_or(DEFAULT_SENDER_LEVELS.min(basis.levels)),
         receiver_levels: basis.levels,
-        bounces: opts.bounces.or(scene.bounces).unwrap_or(DEFAULT_BOUNCES),
+        bounces: if opts.auto_bounces {
+            opts.bounces.unwrap_or(DEFAULT_AUTO_BOUNCE_CAP)
+        } else {
+            opts.bounces.or(scene.bounces).unwrap_or(DEFAULT_BOUNCES)
+        },
         gather_rays: opts
             .gather_rays
             .or(scene.gather_rays)
@@ -148,6 +163,20 @@ pub fn resolve_transport(
         bounces_on_all_receivers: opts.bounces_on_all_receivers,
         seed: basis.seed,
     }
+}
+
+/// The bounce policy asked for, checked.
+pub fn bounce_policy(opts: &BakeOptions) -> Result<BouncePolicy, BakeError> {
+    let tolerance = opts.bounce_tolerance.unwrap_or(DEFAULT_BOUNCE_TOLERANCE);
+    if !(tolerance.is_finite() && tolerance > 0.0 && tolerance < 1.0) {
+        return Err(BakeError::InvalidParameter(format!(
+            "the bounce tolerance must be a fraction in (0, 1), got {tolerance}"
+        )));
+    }
+    Ok(BouncePolicy {
+        auto: opts.auto_bounces,
+        tolerance,
+    })
 }
 
 #[cfg(test)]

@@ -14,12 +14,12 @@ use mlt_scenes::{LightKind, Scene, SpotFalloff};
 use crate::candidates::CandidatePool;
 use crate::error::BakeError;
 use crate::observer::Observer;
-use crate::params::{resolve, resolve_transport, BakeOptions};
+use crate::params::{bounce_policy, resolve, resolve_transport, BakeOptions};
 use crate::placement::{find_coarse_radius, place, Coarse, LevelPlan};
 use crate::poisson::DartSettings;
 use crate::rng::mix64;
 use crate::shard::{needed, owners, shard_section};
-use crate::transport::{check_params, compute_transport, refine_t};
+use crate::transport::{check_params, compute_transport, refine_t, trim_levels, BouncePolicy};
 
 /// The tool name and version recorded in files.
 pub fn tool_version() -> String {
@@ -41,7 +41,8 @@ pub struct BakeOutput {
 pub fn input_key(scene: &Scene, opts: &BakeOptions) -> Result<u64, BakeError> {
     let (params, _) = resolve(opts, &scene.bake)?;
     let transport = resolve_transport(opts, &scene.bake, &params);
-    Ok(key_of(scene, opts, &params, &transport))
+    let policy = bounce_policy(opts)?;
+    Ok(key_of(scene, opts, &params, &transport, &policy))
 }
 
 /// [`input_key`] from parameters already resolved.
@@ -50,8 +51,11 @@ fn key_of(
     opts: &BakeOptions,
     params: &BasisParams,
     transport: &TransportParams,
+    policy: &BouncePolicy,
 ) -> u64 {
     let transport = (!opts.basis_only).then_some(transport);
+    let policy =
+        (!opts.basis_only).then_some([if policy.auto { 1.0 } else { 0.0 }, policy.tolerance]);
     let description = serde_json::json!({
         "tool": tool_version(),
         "format": [mlt_format::container::VERSION_MAJOR, mlt_format::container::VERSION_MINOR],
@@ -63,6 +67,7 @@ fn key_of(
         "light": scene.light,
         "basis": params,
         "transport": transport,
+        "bounce_policy": policy,
         "record_timings": opts.record_timings,
         "compress": opts.compress,
     });
@@ -86,10 +91,18 @@ pub fn bake_scene(
     }
     let (mut params, coarse) = resolve(opts, &scene.bake)?;
     let transport_params = resolve_transport(opts, &scene.bake, &params);
-    let key = key_of(scene, opts, &params, &transport_params);
+    let policy = bounce_policy(opts)?;
+    let key = key_of(scene, opts, &params, &transport_params, &policy);
     if !opts.basis_only {
         // Refuse bad transport parameters before spending time on the basis.
         check_params(&transport_params, params.levels)?;
+        if opts.shard.is_some() && (policy.auto || opts.bounce_tolerance.is_some()) {
+            // The shard section records the transport parameters only; `bake merge` runs
+            // the series with a fixed count and the default tolerance.
+            return Err(BakeError::InvalidParameter(
+                "--bounces auto and --bounce-tolerance are not supported with --shard yet; give a bounce count".into(),
+            ));
+        }
     }
     let viewpoint = scene.viewpoint;
     if !viewpoint.is_finite() {
@@ -219,12 +232,13 @@ pub fn bake_scene(
 
     obs.stage("r-trees");
     let t = Instant::now();
-    let ib = IndexedBasis::build(placement.basis)?;
+    let mut ib = IndexedBasis::build(placement.basis)?;
     let rtrees_s = t.elapsed().as_secs_f64();
     let rtree_nodes: u64 = ib.trees.iter().map(|t| t.node_count() as u64).sum();
     obs.done("r-trees", rtrees_s, &format!("{rtree_nodes} nodes"));
 
     let unsupported = count_points_without_coarser_support(&ib);
+    let points_placed = ib.basis.len() as u64;
     if unsupported > 0 {
         let w = format!(
             "{unsupported} points of finer levels lie where no coarser level has support; their coefficients carry the full value there"
@@ -251,8 +265,20 @@ pub fn bake_scene(
         ));
         file_key = mix64(key ^ mix64(((index as u64) << 32) | count as u64));
     } else if !opts.basis_only {
-        let out = compute_transport(&ib, caster.as_ref(), transport_params, obs)?;
+        let out = compute_transport(&ib, caster.as_ref(), transport_params, policy, obs)?;
         warnings.extend(out.warnings);
+        if out.levels_stored < ib.levels() {
+            let placed = ib.levels();
+            ib = trim_levels(&ib, out.levels_stored)?;
+            obs.done(
+                "levels left out",
+                0.0,
+                &format!(
+                    "receiver levels {}..{placed} hold no link of S and are not stored",
+                    out.levels_stored
+                ),
+            );
+        }
         let mut t = out.transport;
         if opts.record_timings {
             t.meta.timings = Some(out.timings.clone());
@@ -276,7 +302,7 @@ pub fn bake_scene(
         particles: pool.particles,
         candidates: pool.candidates.len() as u64,
         rays: pool.rays + placement.hmd_rays,
-        points: ib.basis.len() as u64,
+        points: points_placed,
         levels: placement.levels,
         rtree_nodes,
         points_without_coarser_support: unsupported,

@@ -3,7 +3,7 @@
 use std::fmt::Write;
 
 use mlt_format::file::FileInfo;
-use mlt_format::meta::{Meta, Timings, TransportMeta, TransportTimings};
+use mlt_format::meta::{Meta, Timings, TransportMeta, TransportReport, TransportTimings};
 
 fn hms(s: f64) -> String {
     if s >= 60.0 {
@@ -141,12 +141,20 @@ pub fn transport_table(t: &TransportMeta, timings: Option<&TransportTimings>) ->
             s.s_links_per_level.get(l).copied().unwrap_or(0)
         );
     }
-    let norms: Vec<String> = s
+    let mut norms: Vec<String> = s
         .bounce_sum_norm
         .iter()
         .zip(&s.bounce_kept_sum_norm)
         .map(|(all, kept)| format!("{kept:.3} of {all:.3}"))
         .collect();
+    if norms.len() > 10 {
+        // A long (auto) series: the first bounces and the last.
+        let n = norms.len();
+        let last = norms.split_off(n - 2);
+        norms.truncate(6);
+        norms.push(format!("... ({} more) ...", n - 8));
+        norms.extend(last);
+    }
     let _ = writeln!(
         o,
         "bounces       spectral radius {:.4}; sum of link norms per bounce, kept of computed: {}",
@@ -172,6 +180,74 @@ pub fn transport_table(t: &TransportMeta, timings: Option<&TransportTimings>) ->
             mb(t.peak_rss_bytes)
         );
     }
+    o
+}
+
+fn pct(x: f64) -> String {
+    if x == 0.0 {
+        "0 %".into()
+    } else if x < 1e-4 {
+        format!("{:.1e} %", 100.0 * x)
+    } else {
+        format!("{:.2} %", 100.0 * x)
+    }
+}
+
+/// The end of the bake's report: the bounce count chosen, the error it estimates it committed
+/// to, and what the file leaves out (the `TRPT` section).
+pub fn estimate_table(r: &TransportReport) -> String {
+    let e = &r.error;
+    let l = &r.left_out;
+    let mut o = String::new();
+    let _ = writeln!(
+        o,
+        "series        {} bounces planned ({}{}), tolerance {}: {}",
+        r.bounces_planned,
+        r.bounce_mode,
+        if r.bounce_mode == "auto" {
+            format!(", cap {}", r.bounce_cap)
+        } else {
+            String::new()
+        },
+        pct(r.bounce_tolerance),
+        if e.series_converged {
+            "converged"
+        } else {
+            "NOT converged"
+        }
+    );
+    let _ = writeln!(
+        o,
+        "error est.    {} of the indirect light = series tail {} + bounce truncation {} + f16 storage {} (uniform-emission estimate; T's links dropped at epsilon and the basis' reconstruction error are not in it)",
+        pct(e.total),
+        pct(e.series_tail),
+        pct(e.bounce_truncation),
+        pct(e.quantisation)
+    );
+    let linked: Vec<String> = l
+        .receivers_linked_per_level
+        .iter()
+        .zip(&l.receivers_refined_per_level)
+        .map(|(k, r)| format!("{k}/{r}"))
+        .collect();
+    let _ = writeln!(
+        o,
+        "left out      levels stored {} of {} ({} of {} points, {} saved); receivers with links / refined per level: {}",
+        l.levels_stored,
+        l.levels_placed,
+        l.points_stored,
+        l.points_placed,
+        mb(l.level_bytes_saved),
+        linked.join(", ")
+    );
+    let _ = writeln!(
+        o,
+        "              senders with links {} of {}; links {} stored vs {} dense",
+        l.senders_linked,
+        l.senders,
+        mb(l.links_bytes),
+        mb(l.dense_links_bytes)
+    );
     o
 }
 
@@ -247,6 +323,9 @@ pub fn info_text(info: &FileInfo) -> String {
     match &info.transport {
         Some(t) => o.push_str(&transport_table(t, t.timings.as_ref())),
         None => o.push_str("transport     none (basis only)\n"),
+    }
+    if let Some(r) = &info.report {
+        o.push_str(&estimate_table(r));
     }
     o
 }

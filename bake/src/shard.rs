@@ -19,7 +19,7 @@ use mlt_format::{BakeContents, IndexedBasis};
 use crate::error::BakeError;
 use crate::observer::Observer;
 use crate::refine::{ReceiverLinks, RefineStats};
-use crate::transport::finish_transport;
+use crate::transport::{finish_transport, trim_levels, BouncePolicy};
 
 /// Spreads the bits of a 10-bit integer three apart.
 fn spread(mut x: u32) -> u32 {
@@ -212,12 +212,20 @@ pub fn merge(shards: Vec<BakeContents>, obs: &dyn Observer) -> Result<BakeConten
         // Per-row unsupported counts are only needed by shards; the totals are in rstats.
         t.push_row(r, &links, 0);
     }
-    let out = finish_transport(ib, t, rstats, s0.params.clone(), 0.0, obs)?;
+    let out = finish_transport(
+        ib,
+        t,
+        rstats,
+        s0.params.clone(),
+        BouncePolicy::default(),
+        0.0,
+        obs,
+    )?;
     let mut transport = out.transport;
     transport.meta.timings = None;
     Ok(BakeContents {
         meta: first.meta.clone(),
-        basis: first.basis.clone(),
+        basis: trim_levels(&first.basis, out.levels_stored)?,
         transport: Some(transport),
         input_key: s0.base_key,
         shard: None,

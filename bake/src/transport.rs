@@ -5,12 +5,15 @@ use std::time::Instant;
 
 use mlt_format::adjacency::{children, neighbors};
 use mlt_format::links::{Links, SenderLinks, LINK_DIM};
-use mlt_format::meta::{TransportMeta, TransportParams, TransportStats, TransportTimings};
+use mlt_format::meta::{
+    ErrorEstimate, LeftOut, TransportMeta, TransportParams, TransportReport, TransportStats,
+    TransportTimings,
+};
 use mlt_format::{IndexedBasis, Transport};
 use mlt_scenes::RayCaster;
 
 use crate::error::BakeError;
-use crate::neumann::{series, spectral_radius, BounceReceivers, Row};
+use crate::neumann::{series, spectral_radius, BounceReceivers, Row, SeriesReport};
 use crate::observer::Observer;
 use crate::refine::{refine, ReceiverLinks, RefineSettings, RefineStats};
 
@@ -20,6 +23,120 @@ pub struct TransportOutput {
     /// Always measured; stored in the file only when timings are recorded.
     pub timings: TransportTimings,
     pub warnings: Vec<String>,
+    /// Levels of the basis to store: finer levels without a link of S are left out (see
+    /// [`trim_levels`]); the links already index only the stored points.
+    pub levels_stored: usize,
+}
+
+/// How long the Neumann series `S = T + T^2 + ...` runs (section 3.2).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BouncePolicy {
+    /// Choose the count from the spectral-radius estimate `rho` (the transport parameters'
+    /// `bounces` is then the cap); otherwise run `bounces` (unless truncation empties a
+    /// bounce first).
+    pub auto: bool,
+    /// Largest fraction of the indirect light the series may leave out (`auto`'s target, and
+    /// the threshold above which a fixed count is warned about).
+    pub tolerance: f64,
+}
+
+/// The default tolerance of [`BouncePolicy`]: 1 % of the indirect light.
+pub const DEFAULT_BOUNCE_TOLERANCE: f64 = 0.01;
+
+impl Default for BouncePolicy {
+    fn default() -> Self {
+        BouncePolicy {
+            auto: false,
+            tolerance: DEFAULT_BOUNCE_TOLERANCE,
+        }
+    }
+}
+
+/// Bounces needed so that the tail of the series, `sum_{b > B} rho^(b-1)` over
+/// `sum_b rho^(b-1)`, i.e. `rho^B`, is at most `tolerance`: `ceil(ln tol / ln rho)`, at least 1.
+/// `None` for `rho >= 1` (the series diverges).
+pub fn bounces_needed(rho: f64, tolerance: f64) -> Option<u64> {
+    let usable = rho < 1.0 && tolerance > 0.0 && tolerance < 1.0;
+    if !usable {
+        return None;
+    }
+    if rho <= 0.0 {
+        return Some(1);
+    }
+    let b = (tolerance.ln() / rho.ln()).ceil();
+    Some((b.max(1.0) as u64).max(1))
+}
+
+/// The bake's estimate of the error it committed to (see [`ErrorEstimate`]), from each
+/// bounce's light at the coarsest points under uniform unit emission (computed and kept,
+/// [`SeriesReport::energy`]) and the spectral radius `rho < 1`, per colour channel (the
+/// worst channel is reported).
+///
+/// With `k_b` the kept and `s_b` the computed light of bounce `b` and `g = 1 / (1 - rho)`:
+/// the tail beyond the last bounce `B` is `k_B rho g`, the light truncation dropped, with the
+/// later bounces it would have caused, `sum_b (s_b - k_b) g`, and the total `sum_b k_b` plus
+/// both. For a closed scene of uniform albedo without truncation the tail is exactly `rho^B`
+/// of the total (bounce `b` carries `rho^(b-1)` of the first, section 3.2).
+/// `quantisation` is the largest absolute f16 error and `max_link` the largest link norm
+/// of S.
+pub fn error_estimate(
+    report: &SeriesReport,
+    rho: f64,
+    tolerance: f64,
+    quantisation: f32,
+    max_link: f64,
+) -> ErrorEstimate {
+    let g = 1.0 / (1.0 - rho).max(1e-12);
+    let (mut series_tail, mut bounce_truncation) = (0.0f64, 0.0f64);
+    for c in 0..3 {
+        let kept: f64 = report.kept_energy.iter().map(|e| e[c].max(0.0)).sum();
+        let last = report.kept_energy.last().map_or(0.0, |e| e[c].max(0.0));
+        let tail = last * rho * g;
+        let dropped: f64 = report
+            .energy
+            .iter()
+            .zip(&report.kept_energy)
+            .map(|(s, k)| (s[c] - k[c]).abs() * g)
+            .sum();
+        let total = kept + tail + dropped;
+        if total > 0.0 && total.is_finite() {
+            series_tail = series_tail.max(tail / total);
+            bounce_truncation = bounce_truncation.max(dropped / total);
+        }
+    }
+    let quantisation = if max_link > 0.0 {
+        quantisation as f64 / max_link
+    } else {
+        0.0
+    };
+    ErrorEstimate {
+        series_tail,
+        bounce_truncation,
+        quantisation,
+        total: series_tail + bounce_truncation + quantisation,
+        series_converged: series_tail <= tolerance,
+    }
+}
+
+/// The basis of the first `levels` levels of `ib` (finer levels dropped with their R-trees;
+/// the kept points keep their indices).
+pub fn trim_levels(ib: &IndexedBasis, levels: usize) -> Result<IndexedBasis, BakeError> {
+    if levels >= ib.levels() {
+        return Ok(ib.clone());
+    }
+    let b = &ib.basis;
+    let n = b.level_offsets[levels] as usize;
+    let basis = mlt_format::Basis {
+        positions: b.positions[..n].to_vec(),
+        normals: b.normals[..n].to_vec(),
+        radii: b.radii[..n].to_vec(),
+        level_offsets: b.level_offsets[..=levels].to_vec(),
+        disk_radii: b.disk_radii[..levels].to_vec(),
+    };
+    Ok(IndexedBasis::from_parts(
+        basis,
+        ib.trees[..levels].to_vec(),
+    )?)
 }
 
 /// Checks the transport parameters against the basis.
@@ -71,11 +188,12 @@ pub fn compute_transport(
     ib: &IndexedBasis,
     caster: &dyn RayCaster,
     params: TransportParams,
+    policy: BouncePolicy,
     obs: &dyn Observer,
 ) -> Result<TransportOutput, BakeError> {
     check_params(&params, ib.levels() as u32)?;
     let (t, rstats, refine_s) = refine_t(ib, caster, &params, None, obs);
-    finish_transport(ib, t, rstats, params, refine_s, obs)
+    finish_transport(ib, t, rstats, params, policy, refine_s, obs)
 }
 
 /// The refinement of T (optionally only of the receivers marked in `needed`, for a shard);
@@ -123,6 +241,7 @@ pub fn finish_transport(
     t: ReceiverLinks,
     rstats: RefineStats,
     params: TransportParams,
+    policy: BouncePolicy,
     refine_s: f64,
     obs: &dyn Observer,
 ) -> Result<TransportOutput, BakeError> {
@@ -146,39 +265,36 @@ pub fn finish_transport(
     } else {
         BounceReceivers::Coarsest
     };
+    // The count: the one asked for, or (auto) the one that brings the tail rho^B under the
+    // tolerance, at most the cap.
+    let needed = bounces_needed(rho, policy.tolerance);
+    let planned = if policy.auto {
+        needed
+            .unwrap_or(params.bounces as u64)
+            .min(params.bounces as u64) as u32
+    } else {
+        params.bounces
+    };
     let (extra, report) = series(
         ib,
         &t,
         senders,
-        params.bounces,
+        planned,
         params.bounce_epsilon,
         bounce_receivers,
         |b, kept| {
-            obs.done(
-                &format!("bounce {b}"),
-                t1.elapsed().as_secs_f64(),
-                &format!("{kept} links above epsilon"),
-            )
+            // Every bounce of a short series; of a long one the first few, powers of two
+            // and the last.
+            if b <= 8 || b.is_power_of_two() || b == planned || kept == 0 {
+                obs.done(
+                    &format!("bounce {b}"),
+                    t1.elapsed().as_secs_f64(),
+                    &format!("{kept} links above epsilon"),
+                )
+            }
         },
     );
     let bounces_s = t1.elapsed().as_secs_f64();
-    let first = report.sum_norm.first().copied().unwrap_or(0.0);
-    let last = report.sum_norm.last().copied().unwrap_or(0.0);
-    if !report.converged_early && params.bounces > 1 && first > 0.0 && last > 0.01 * first {
-        // Bounce b adds about rho^(b-1) of the first; the rest of the series about
-        // rho^B / (1 - rho) of it.
-        let missing = rho.powi(report.bounces as i32) / (1.0 - rho);
-        let more = ((0.01f64).ln() / rho.ln()).ceil() as i64 - report.bounces as i64;
-        let w = format!(
-            "the Neumann series has not converged after {} bounces: the last adds {:.1} % of the first, and the bounces left out carry about {:.0} % of it (spectral radius {rho:.3}); about {} more bounces would bring a bounce below 1 %",
-            report.bounces,
-            100.0 * last / first,
-            100.0 * missing,
-            more.max(1)
-        );
-        obs.warn(&w);
-        warnings.push(w);
-    }
     obs.done(
         "indirect bounces",
         bounces_s,
@@ -218,8 +334,31 @@ pub fn finish_transport(
         }
         s_per_level[b.level_of(r as usize)] += 1;
     }
+    // Levels to store: every sender level, and the receiver levels that hold a link of S
+    // (refinement queues a receiver's children only when it kept a link, so these are
+    // contiguous from level 0).
+    let mut linked_per_level = vec![0u64; levels];
+    {
+        let mut linked = vec![false; receivers];
+        for (_, col) in &columns {
+            for (r, _) in col {
+                linked[*r as usize] = true;
+            }
+        }
+        for (r, &l) in linked.iter().enumerate() {
+            if l {
+                linked_per_level[b.level_of(r)] += 1;
+            }
+        }
+    }
+    let last_linked = linked_per_level
+        .iter()
+        .rposition(|&n| n > 0)
+        .map_or(0, |l| l + 1);
+    let levels_stored = last_linked.max(params.sender_levels as usize).min(levels);
+    let stored_receivers = b.level_offsets[levels_stored] as usize;
     let (links, qerr) = Links::pack(
-        receivers as u32,
+        stored_receivers as u32,
         senders as u32,
         columns.iter().map(|(s, col)| SenderLinks {
             sender: *s,
@@ -228,6 +367,71 @@ pub fn finish_transport(
     );
     let links_bytes = mlt_format::file::archived_len(&links)?;
     let basis_bytes = mlt_format::file::basis_archived_len(ib)?;
+    let stored_basis_bytes = if levels_stored < levels {
+        mlt_format::file::basis_archived_len(&trim_levels(ib, levels_stored)?)?
+    } else {
+        basis_bytes
+    };
+
+    let max_link = columns
+        .iter()
+        .flat_map(|(_, col)| col.iter())
+        .fold(0.0f64, |m, (_, v)| {
+            m.max(crate::gather::link_norm(v) as f64)
+        });
+    let error = error_estimate(&report, rho, policy.tolerance, qerr, max_link);
+    let more = needed.map_or("many more".to_string(), |n| n.to_string());
+    if !error.series_converged {
+        let w = if policy.auto {
+            format!(
+                "the Neumann series is cut at the cap of {} bounces (spectral radius {rho:.4}): bounces left out carry about {:.1} % of the indirect light; {more} bounces would bring that under {:.1} % (raise the cap with --bounces auto:N)",
+                report.bounces,
+                100.0 * error.series_tail,
+                100.0 * policy.tolerance
+            )
+        } else {
+            format!(
+                "the Neumann series has not converged after {} bounces (spectral radius {rho:.4}): bounces left out carry about {:.1} % of the indirect light; {more} bounces would bring that under {:.1} % (--bounces auto chooses the count)",
+                report.bounces,
+                100.0 * error.series_tail,
+                100.0 * policy.tolerance
+            )
+        };
+        obs.warn(&w);
+        warnings.push(w);
+    }
+    if error.bounce_truncation > policy.tolerance {
+        let w = format!(
+            "truncating bounces 2 and later at the bounce epsilon {} drops about {:.1} % of the indirect light (estimate, above the tolerance {:.1} %); a smaller --bounce-epsilon (e.g. {}) keeps it",
+            params.bounce_epsilon,
+            100.0 * error.bounce_truncation,
+            100.0 * policy.tolerance,
+            params.bounce_epsilon / 25.0
+        );
+        obs.warn(&w);
+        warnings.push(w);
+    }
+    let dense_links_bytes = senders as u64 * receivers as u64 * (LINK_DIM as u64 * 2);
+    let report_section = TransportReport {
+        bounce_mode: if policy.auto { "auto" } else { "fixed" }.into(),
+        bounce_tolerance: policy.tolerance,
+        bounces_planned: planned,
+        bounce_cap: if policy.auto { params.bounces } else { 0 },
+        error,
+        left_out: LeftOut {
+            levels_placed: levels as u32,
+            levels_stored: levels_stored as u32,
+            points_placed: receivers as u64,
+            points_stored: stored_receivers as u64,
+            level_bytes_saved: basis_bytes.saturating_sub(stored_basis_bytes),
+            receivers_refined_per_level: rstats.receivers_refined.clone(),
+            receivers_linked_per_level: linked_per_level,
+            senders_linked: links.sender_ids.len() as u64,
+            senders: senders as u64,
+            links_bytes,
+            dense_links_bytes,
+        },
+    };
 
     let stats = TransportStats {
         links: links.link_count() as u64,
@@ -264,8 +468,10 @@ pub fn finish_transport(
                 timings: None,
             },
             links,
+            report: Some(report_section),
         },
         timings,
         warnings,
+        levels_stored,
     })
 }

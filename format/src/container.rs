@@ -32,7 +32,8 @@ use crate::error::FormatError;
 
 pub const MAGIC: [u8; 8] = *b"\x89MLTBK\r\n";
 pub const VERSION_MAJOR: u16 = 1;
-pub const VERSION_MINOR: u16 = 2;
+/// 1.3 added the optional `TRPT` section (error estimate, bounce choice, what was left out).
+pub const VERSION_MINOR: u16 = 3;
 pub const FIXED_HEADER: usize = 64;
 pub const ENTRY_SIZE: usize = 32;
 pub const ALIGN: usize = 16;

@@ -14,7 +14,7 @@ use crate::basis::Basis;
 use crate::container::{self, Header, SectionBytes, SectionIn, ALIGN};
 use crate::error::FormatError;
 use crate::links::{ArchivedLinks, Links};
-use crate::meta::{Meta, TransportMeta};
+use crate::meta::{Meta, TransportMeta, TransportReport};
 use crate::rtree::RTree;
 use crate::shard::ShardSection;
 use crate::shepard::IndexedBasis;
@@ -26,6 +26,9 @@ pub const TAG_RTREES: [u8; 4] = *b"RTRE";
 /// Added in format 1.1: the transport operator S and how it was made.
 pub const TAG_TRANSPORT: [u8; 4] = *b"TRNS";
 pub const TAG_LINKS: [u8; 4] = *b"SLNK";
+/// Added in format 1.3: the bake's error estimate, bounce choice and what it left out
+/// ([`TransportReport`]); optional, so 1.1 and 1.2 files still read.
+pub const TAG_REPORT: [u8; 4] = *b"TRPT";
 /// A shard's share of T (shard files only).
 pub const TAG_SHARD: [u8; 4] = *b"TSHD";
 
@@ -54,6 +57,8 @@ pub struct BakeContents {
 pub struct Transport {
     pub meta: TransportMeta,
     pub links: Links,
+    /// The `TRPT` section; `None` in files written before format 1.3.
+    pub report: Option<TransportReport>,
 }
 
 /// How to write.
@@ -86,6 +91,10 @@ pub fn encode(contents: &BakeContents, opts: WriteOptions) -> Result<Vec<u8>, Fo
         let links = rkyv::to_bytes::<rancor::Error>(&t.links).map_err(ser_err(TAG_LINKS))?;
         sections.push((TAG_TRANSPORT, tm));
         sections.push((TAG_LINKS, links));
+        if let Some(r) = &t.report {
+            let bytes = rkyv::to_bytes::<rancor::Error>(r).map_err(ser_err(TAG_REPORT))?;
+            sections.push((TAG_REPORT, bytes));
+        }
     }
     if let Some(s) = &contents.shard {
         let bytes = rkyv::to_bytes::<rancor::Error>(s).map_err(ser_err(TAG_SHARD))?;
@@ -274,6 +283,14 @@ impl BakedFile {
         self.section::<TransportMeta>(TAG_TRANSPORT).map(Some)
     }
 
+    /// The `TRPT` section, if the file has one (format 1.3 and later, with transport).
+    pub fn transport_report(&self) -> Result<Option<TransportReport>, FormatError> {
+        if !self.has_section(TAG_REPORT) {
+            return Ok(None);
+        }
+        self.section::<TransportReport>(TAG_REPORT).map(Some)
+    }
+
     /// The `TSHD` section of a shard file, validated against the basis' size.
     pub fn shard(&self) -> Result<Option<ShardSection>, FormatError> {
         if !self.has_section(TAG_SHARD) {
@@ -306,7 +323,11 @@ impl BakedFile {
             Some(meta) => {
                 let links = self.section::<Links>(TAG_LINKS)?;
                 links.validate().map_err(|e| self.bad_links(e))?;
-                Some(Transport { meta, links })
+                Some(Transport {
+                    meta,
+                    links,
+                    report: self.transport_report()?,
+                })
             }
         };
         Ok(BakeContents {
@@ -372,6 +393,7 @@ impl BakedFile {
             levels,
             meta,
             transport: self.transport_meta()?,
+            report: self.transport_report()?,
         })
     }
 }
@@ -388,6 +410,8 @@ pub struct FileInfo {
     pub levels: Vec<LevelInfo>,
     pub meta: Meta,
     pub transport: Option<TransportMeta>,
+    /// The `TRPT` section (format 1.3 and later).
+    pub report: Option<TransportReport>,
 }
 
 #[derive(Clone, Debug, Serialize)]

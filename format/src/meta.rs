@@ -229,3 +229,71 @@ data! {
         pub threads: u32,
     }
 }
+
+data! {
+    /// The `TRPT` section (since format 1.3; absent from older files and from basis-only and
+    /// shard files): how the bake chose the length of the Neumann series, the error it
+    /// estimates it committed to, and what it left out of the file. A new section rather than
+    /// new fields of `TRNS`, whose layout is fixed within the major version.
+    pub struct TransportReport {
+        /// `fixed` (a count, the paper's 4 by default) or `auto` (the count chosen from the
+        /// spectral-radius estimate so that the series tail falls under `bounce_tolerance`).
+        pub bounce_mode: String,
+        /// Largest fraction of the indirect light the series may leave out: the target of
+        /// `auto`, the warning threshold of `fixed`.
+        pub bounce_tolerance: f64,
+        /// The count the series was allowed (fixed: the count asked; auto: the chosen count,
+        /// at most `bounce_cap`), and the cap of `auto` (0 for `fixed`).
+        pub bounces_planned: u32,
+        pub bounce_cap: u32,
+        pub error: ErrorEstimate,
+        pub left_out: LeftOut,
+    }
+}
+
+data! {
+    /// The bake's own estimate of the relative error it committed to, as fractions of the
+    /// indirect light at the coarsest points under uniform unit emission at the coarsest
+    /// senders (the worst colour channel). Not a per-pixel RMSE: the basis' reconstruction
+    /// error and the links of T the refinement dropped at epsilon (Fig. 5) are not in it.
+    pub struct ErrorEstimate {
+        /// Indirect light beyond the last bounce computed: the last kept bounce times
+        /// `rho / (1 - rho)`, over the estimated total (`rho^B` for a closed scene of
+        /// uniform albedo).
+        pub series_tail: f64,
+        /// Light dropped by truncating bounces >= 2 below the bounce epsilon, with the later
+        /// bounces it would have caused (`/ (1 - rho)`), over the estimated total.
+        pub bounce_truncation: f64,
+        /// Largest half-float storage error over the largest link norm of S.
+        pub quantisation: f64,
+        /// The sum of the three.
+        pub total: f64,
+        /// Whether `series_tail` is within the tolerance.
+        pub series_converged: bool,
+    }
+}
+
+data! {
+    /// What the bake did not store, and what that saved.
+    pub struct LeftOut {
+        /// Levels placed, and levels stored: finer levels into which refinement added no
+        /// receiver with a link (and that are not sender levels) are dropped with their
+        /// points and R-trees; the hierarchical expansion of `S e` is unchanged by it.
+        pub levels_placed: u32,
+        pub levels_stored: u32,
+        pub points_placed: u64,
+        pub points_stored: u64,
+        /// Bytes of the dropped levels' points and R-trees.
+        pub level_bytes_saved: u64,
+        /// Per placed level: receivers refined (T rows computed) and receivers with a link
+        /// of S.
+        pub receivers_refined_per_level: Vec<u64>,
+        pub receivers_linked_per_level: Vec<u64>,
+        /// Senders with at least one link (the others have no column in `SLNK`), of all.
+        pub senders_linked: u64,
+        pub senders: u64,
+        /// Bytes of the links as stored, and what a dense S in the same half floats would take.
+        pub links_bytes: u64,
+        pub dense_links_bytes: u64,
+    }
+}

@@ -35,7 +35,7 @@ pub enum SceneError {
     NoTriangles { path: PathBuf },
 
     /// A NaN or infinite number where a finite one is required.
-    #[error("{}: {what} has a non-finite coordinate", path.display())]
+    #[error("{}: {what} is not finite (NaN or infinity)", path.display())]
     NonFinite { path: PathBuf, what: String },
 
     /// A triangle refers to a vertex that does not exist.

@@ -209,10 +209,26 @@ impl Loader<'_> {
         // Normals: inverse transpose of the linear part. Missing ones are "absent" (zero).
         let linear = Mat3::from_mat4(world);
         let normal_matrix = linear.inverse().transpose();
-        let normals: Vec<Vec3> = reader
+        let source_normals: Vec<Vec3> = reader
             .read_normals()
-            .map(|it| it.map(|n| normal_matrix * Vec3::from(n)).collect())
+            .map(|it| it.map(Vec3::from).collect())
             .unwrap_or_default();
+        // A NaN or infinite normal is an error in the file, not an absent normal (a zero one is
+        // absent: the face normal stands in with a warning).
+        if let Some(k) = source_normals.iter().position(|n| !n.is_finite()) {
+            return Err(SceneError::NonFinite {
+                path: self.path.to_path_buf(),
+                what: format!(
+                    "mesh {} primitive {} vertex {k} normal",
+                    m.index(),
+                    primitive.index()
+                ),
+            });
+        }
+        let normals: Vec<Vec3> = source_normals
+            .into_iter()
+            .map(|n| normal_matrix * n)
+            .collect();
         let normals_ok = normals.len() == count;
         if normals_ok && self.mesh.normals.is_empty() && base > 0 {
             self.mesh.normals.resize(base, Vec3::ZERO);
@@ -577,6 +593,41 @@ mod tests {
         assert_eq!(a.triangles.len(), 2);
         assert_eq!(a.positions, b.positions);
         assert_eq!(a.triangles, b.triangles);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn nan_in_buffers_is_rejected_naming_the_file_and_the_attribute() {
+        let dir = std::env::temp_dir().join(format!("mlt-gltf-nan-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("temp dir");
+        // Byte offsets in test_buffer(): positions 0..36, normals 36..72.
+        for (offset, value, what) in [
+            (4usize, f32::NAN, "vertex 0 position"),
+            (12, f32::INFINITY, "vertex 1 position"),
+            (36 + 8, f32::NAN, "vertex 0 normal"),
+            (36 + 12, f32::NEG_INFINITY, "vertex 1 normal"),
+        ] {
+            let mut buf = test_buffer();
+            buf[offset..offset + 4].copy_from_slice(&value.to_le_bytes());
+            let uri = format!("data:application/octet-stream;base64,{}", base64(&buf));
+            let json = test_json(&format!(r#""byteLength": {}, "uri": "{uri}""#, buf.len()));
+            let path = dir.join("nan.gltf");
+            std::fs::write(&path, json).expect("write gltf");
+            let e = load_gltf(&path, 1.0).unwrap_err();
+            let msg = e.to_string();
+            assert!(matches!(e, SceneError::NonFinite { .. }), "{msg}");
+            assert!(msg.contains("nan.gltf") && msg.contains(what), "{msg}");
+        }
+        // A non-finite base colour cannot be written in JSON; an overflowing one is refused
+        // by the parser, naming the file.
+        let buf = test_buffer();
+        let uri = format!("data:application/octet-stream;base64,{}", base64(&buf));
+        let json = test_json(&format!(r#""byteLength": {}, "uri": "{uri}""#, buf.len()))
+            .replace("[0.8, 0.1, 0.1, 1]", "[1e999, 0.1, 0.1, 1]");
+        let path = dir.join("inf_colour.gltf");
+        std::fs::write(&path, json).expect("write gltf");
+        let e = load_gltf(&path, 1.0).unwrap_err().to_string();
+        assert!(e.contains("inf_colour.gltf"), "{e}");
         let _ = std::fs::remove_dir_all(&dir);
     }
 

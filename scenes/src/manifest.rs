@@ -193,6 +193,14 @@ pub fn load_manifest(path: &Path) -> Result<Scene, SceneError> {
         scene.light = light;
     }
     if let Some(bake) = file.bake {
+        for (what, value) in [
+            ("[bake] epsilon", bake.epsilon),
+            ("[bake] coarse_radius", bake.coarse_radius),
+        ] {
+            if let Some(v) = value {
+                check_finite(path, what, &[v])?;
+            }
+        }
         scene.bake = bake;
     }
     if explicit_viewpoint {

@@ -290,11 +290,15 @@ fn append_models(
         }
         if any_normals {
             if m.normals.len() == 3 * count {
-                mesh.normals.extend(
-                    m.normals
-                        .chunks_exact(3)
-                        .map(|n| Vec3::new(n[0], n[1], n[2])),
-                );
+                for n in m.normals.chunks_exact(3) {
+                    let n = Vec3::new(n[0], n[1], n[2]);
+                    if !n.is_finite() {
+                        // NaN or infinite: an error in the file (a zero normal is only
+                        // absent, and warned about).
+                        return Err(non_finite_statement(path, text, "vn", "normal"));
+                    }
+                    mesh.normals.push(n);
+                }
             } else {
                 partial_normals += count;
                 mesh.normals.extend(std::iter::repeat_n(Vec3::ZERO, count));
@@ -375,6 +379,30 @@ fn parse_triple<'a>(mut words: impl Iterator<Item = &'a str>) -> Option<[f32; 3]
         *o = words.next()?.parse().ok()?;
     }
     Some(out)
+}
+
+/// Error for a non-finite `keyword` statement (`vn`, `vt`): names the first one with a
+/// non-finite number and its line.
+fn non_finite_statement(path: &Path, text: &[u8], keyword: &str, what: &str) -> SceneError {
+    let text = String::from_utf8_lossy(text);
+    let mut number = 0usize;
+    for (line_no, line) in text.lines().enumerate() {
+        let mut words = line.split_whitespace();
+        if words.next() != Some(keyword) {
+            continue;
+        }
+        number += 1;
+        if words.any(|w| w.parse::<f32>().map_or(true, |x| !x.is_finite())) {
+            return SceneError::NonFinite {
+                path: path.to_path_buf(),
+                what: format!("{what} {number} ('{keyword}' on line {})", line_no + 1),
+            };
+        }
+    }
+    SceneError::NonFinite {
+        path: path.to_path_buf(),
+        what: format!("a vertex {what}"),
+    }
 }
 
 /// Error for a non-finite position: names the `v` statement and its line in the file when it
@@ -559,6 +587,21 @@ mod tests {
                 "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n",
                 "line 4",
             ),
+            (
+                "nan_normal.obj",
+                "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nvn 0 NaN 1\nf 1//1 2//2 3//1\n",
+                "normal 2 ('vn' on line 5)",
+            ),
+            (
+                "inf_normal.obj",
+                "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn -inf 0 1\nf 1//1 2//1 3//1\n",
+                "normal 1 ('vn' on line 4)",
+            ),
+            (
+                "nan_kd.obj",
+                "mtllib nan.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl m\nf 1 2 3\n",
+                "material 'm' albedo",
+            ),
             ("relative.obj", "v 0 0 0\nv 1 0 0\nf -1 -2 -3\n", "line 3"),
             ("zero.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", "line 4"),
             ("empty.obj", "v 0 0 0\nv 1 0 0\nl 1 2\n", "no triangles"),
@@ -568,6 +611,7 @@ mod tests {
                 "no triangles",
             ),
         ];
+        write(&dir, "nan.mtl", "newmtl m\nKd 0.5 nan 0.5\n");
         for (name, text, needle) in cases {
             let p = write(&dir, name, text);
             let e = load_obj(&p, 1.0).expect_err(name).to_string();

@@ -189,3 +189,72 @@ fn unknown_extension_and_missing_files() {
     let e = load_scene("builtin:nope").expect_err("builtin");
     assert!(matches!(e, SceneError::Builtin { .. }));
 }
+
+/// NaN or infinity in any number of a manifest is an error naming the file and the field
+/// (TOML writes them `nan`, `inf`, `-inf`).
+#[test]
+fn every_non_finite_manifest_number_is_named() {
+    let scene = "[scene]\nsource = \"meshes/tri.obj\"\n";
+    let camera = |field: &str, v: &str| {
+        let mut c = vec![
+            ("position", "[0, 0, 1]".to_string()),
+            ("target", "[0, 0, 0]".to_string()),
+            ("up", "[0, 1, 0]".to_string()),
+            ("fovy_deg", "45".to_string()),
+        ];
+        for (k, x) in &mut c {
+            if *k == field {
+                *x = v.to_string();
+            }
+        }
+        let body: Vec<String> = c.iter().map(|(k, x)| format!("{k} = {x}")).collect();
+        format!("{scene}[camera]\n{}\n", body.join("\n"))
+    };
+    let spot = |field: &str, v: &str| {
+        let mut c = vec![
+            ("position", "[0, 1, 0]".to_string()),
+            ("intensity", "[1, 1, 1]".to_string()),
+            ("direction", "[0, -1, 0]".to_string()),
+            ("cone_deg", "30".to_string()),
+        ];
+        for (k, x) in &mut c {
+            if *k == field {
+                *x = v.to_string();
+            }
+        }
+        let body: Vec<String> = c.iter().map(|(k, x)| format!("{k} = {x}")).collect();
+        format!("{scene}[light]\nkind = \"spot\"\n{}\n", body.join("\n"))
+    };
+    let cases: Vec<(String, &str)> = vec![
+        (
+            "[scene]\nsource = \"meshes/tri.obj\"\nscale = inf\n".into(),
+            "scale",
+        ),
+        (
+            "[scene]\nsource = \"meshes/tri.obj\"\nviewpoint = [0, 0, -inf]\n".into(),
+            "[scene] viewpoint",
+        ),
+        (camera("position", "[nan, 0, 1]"), "[camera] position"),
+        (camera("target", "[0, inf, 0]"), "[camera] target"),
+        (camera("up", "[0, nan, 0]"), "[camera] up"),
+        (camera("fovy_deg", "nan"), "[camera] fovy_deg"),
+        (spot("position", "[0, nan, 0]"), "[light] position"),
+        (spot("intensity", "[1, inf, 1]"), "[light] intensity"),
+        (spot("direction", "[0, -inf, 0]"), "[light] direction"),
+        (spot("cone_deg", "nan"), "[light] cone_deg"),
+        (format!("{scene}[bake]\nepsilon = nan\n"), "[bake] epsilon"),
+        (
+            format!("{scene}[bake]\ncoarse_radius = inf\n"),
+            "[bake] coarse_radius",
+        ),
+    ];
+    for (k, (text, field)) in cases.iter().enumerate() {
+        let e = err_of(&format!("nonfinite{k}"), text);
+        let msg = e.to_string();
+        assert!(msg.contains(field), "{field}: {msg}");
+        assert!(
+            msg.contains("finite"),
+            "{field}: the message does not say what is wrong: {msg}"
+        );
+    }
+}
