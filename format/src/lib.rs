@@ -5,7 +5,8 @@
 //! - [`basis`]: the hierarchical point set; [`rtree`]: one R-tree per level;
 //! - [`shepard`]: per-level Shepard basis (Eq. 2) and hierarchical reconstruction (Eq. 6);
 //! - [`pull_push`]: coarse-to-fine projection `P` (Eq. 7) and pull-push `P-dagger`;
-//! - [`flatten`]: resampling to a single level; [`adjacency`]: neighbours, parents, children;
+//! - [`flatten`]: resampling to a single level, [`flatten_op`]: its precomputed sparse
+//!   operator; [`adjacency`]: neighbours, parents, children;
 //! - [`container`], [`meta`], [`file`]: the versioned, memory-mappable file.
 //!
 //! This crate depends on no mesh, GPU or windowing crate.
@@ -16,6 +17,7 @@ pub mod container;
 pub mod error;
 pub mod file;
 pub mod flatten;
+pub mod flatten_op;
 pub mod kernel;
 pub mod links;
 pub mod meta;

@@ -5,19 +5,26 @@
 //!    leave the sender point and end at points spread around the light, over a disk facing the
 //!    point of radius half the sender level's disk radius (at most a quarter of the distance),
 //!    so that visibility is averaged over about the sender's footprint. (Jittering the start
-//!    points over the tangent plane instead leaves curved surfaces and shadows them.)
-//! 2. pull-push projection onto the sender levels, `e = P-dagger E`;
-//! 3. `i = S e`, sender-major, skipping senders whose light is negligible;
-//! 4. flattening of `i` to one level on the same points.
+//!    points over the tangent plane instead leaves curved surfaces and shadows them.) Points
+//!    whose sample the pull-push replaces by their children's average cast no rays.
+//! 2. pull-push projection onto the sender levels, `e = P-dagger E` (section 2.1), with the
+//!    weights precomputed ([`PullPushOp`]);
+//! 3. `i = S e`, receiver-major in full precision ([`ReceiverLinks`]), skipping senders whose
+//!    light is negligible;
+//! 4. flattening of `i` to one level on the same points (section 4.1) by a precomputed sparse
+//!    operator ([`FlattenOp`]) that holds only the columns of receivers with links and skips
+//!    receivers that are dark this frame.
 //!
-//! When the light has not moved, nothing is recomputed.
+//! The operators are built once, in [`CpuRelighter::new`] (timed in [`LoadStats`]). When the
+//! light has not moved, nothing is recomputed.
 
 use std::time::Instant;
 
 use glam::Vec3;
 use mlt_format::flatten::flatten;
-use mlt_format::links::{ArchivedLinks, LINK_DIM};
-use mlt_format::pull_push::pull_push_levels;
+use mlt_format::flatten_op::{FlattenOp, FlattenScratch};
+use mlt_format::links::{ArchivedLinks, ReceiverLinks, LINK_DIM};
+use mlt_format::pull_push::PullPushOp;
 use mlt_format::IndexedBasis;
 use mlt_scenes::RayCaster;
 use rayon::prelude::*;
@@ -34,16 +41,38 @@ pub struct StageTimes {
     pub flatten_ms: f64,
 }
 
+/// What building the relighter's operators cost, once per loaded file.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct LoadStats {
+    /// Wall time of [`CpuRelighter::new`], milliseconds.
+    pub build_ms: f64,
+    /// Of which the flattening operator.
+    pub flatten_build_ms: f64,
+    /// Columns and entries of the flattening operator, and its heap bytes.
+    pub flatten_columns: usize,
+    pub flatten_entries: usize,
+    pub flatten_bytes: usize,
+    /// Heap bytes of the precomputed pull-push.
+    pub pull_push_bytes: usize,
+    /// Heap bytes of the receiver-major decoded links.
+    pub links_bytes: usize,
+    /// Sender points that cast shadow rays (the others are pulled from their children).
+    pub direct_points: usize,
+}
+
 /// The lighting of one frame.
 #[derive(Clone, Debug, Default)]
 pub struct Frame {
-    /// Direct irradiance samples at the sender points, RGB.
+    /// Direct irradiance samples at the sender points, RGB. At the points whose sample the
+    /// pull-push replaces (those with children, on all but the finest sender level) this is
+    /// that replacement, the weighted average of the children's values, not a ray-cast sample.
     pub direct: Vec<f32>,
     /// Sender coefficients `e` (RGB per sender point).
     pub e: Vec<f32>,
     /// Receiver coefficients `i` of indirect vector irradiance (9 per point).
     pub i: Vec<f32>,
-    /// Flat coefficients (9 per point).
+    /// Flat coefficients (9 per point, all points of all levels), as
+    /// [`mlt_format::flatten::flatten`] of `i` computes them up to rounding.
     pub flat: Vec<f32>,
     pub times: StageTimes,
     /// Senders whose links were applied.
@@ -65,6 +94,14 @@ pub struct CpuRelighter<'a> {
     caster: &'a dyn RayCaster,
     sender_levels: usize,
     shadow_rays: u32,
+    pull_push: PullPushOp,
+    /// Per sender point: whether its direct sample is used (cast rays only there).
+    sample_used: Vec<bool>,
+    receiver_links: ReceiverLinks,
+    /// `None` only if the operator is too large for 32-bit offsets: then [`flatten`] runs.
+    flatten_op: Option<FlattenOp>,
+    flatten_scratch: FlattenScratch,
+    load: LoadStats,
     /// Senders whose largest direct channel is at most this fraction of the frame's largest
     /// are skipped in `i = S e`.
     pub skip_fraction: f32,
@@ -73,6 +110,8 @@ pub struct CpuRelighter<'a> {
 }
 
 impl<'a> CpuRelighter<'a> {
+    /// Builds the per-file operators (in parallel; the same for any thread count). `links`
+    /// must be validated.
     pub fn new(
         ib: &'a IndexedBasis,
         links: &'a ArchivedLinks,
@@ -80,19 +119,65 @@ impl<'a> CpuRelighter<'a> {
         sender_levels: usize,
         shadow_rays: u32,
     ) -> CpuRelighter<'a> {
+        let t0 = Instant::now();
+        let sender_levels = sender_levels.min(ib.levels());
+        let ((pull_push, receiver_links), (flatten_op, flatten_build_ms)) = rayon::join(
+            || {
+                rayon::join(
+                    || PullPushOp::build(ib, sender_levels),
+                    || ReceiverLinks::build(links),
+                )
+            },
+            || {
+                let t = Instant::now();
+                // Only receivers with links can have a non-zero coefficient.
+                let mut keep = vec![false; ib.basis.len()];
+                for r in 0..links.receiver_ids.len() {
+                    let r = links.receiver_ids[r].to_native() as usize;
+                    if let Some(k) = keep.get_mut(r) {
+                        *k = true;
+                    }
+                }
+                let op = FlattenOp::build(ib, Some(&keep)).ok();
+                (op, t.elapsed().as_secs_f64() * 1e3)
+            },
+        );
+        let sample_used = pull_push.sample_used();
+        let load = LoadStats {
+            build_ms: t0.elapsed().as_secs_f64() * 1e3,
+            flatten_build_ms,
+            flatten_columns: flatten_op.as_ref().map_or(0, FlattenOp::columns),
+            flatten_entries: flatten_op.as_ref().map_or(0, FlattenOp::entries),
+            flatten_bytes: flatten_op.as_ref().map_or(0, FlattenOp::bytes),
+            pull_push_bytes: pull_push.bytes(),
+            links_bytes: receiver_links.bytes(),
+            direct_points: sample_used.iter().filter(|u| **u).count(),
+        };
         CpuRelighter {
             ib,
             links,
             caster,
-            sender_levels: sender_levels.min(ib.levels()),
+            sender_levels,
             shadow_rays: shadow_rays.max(1),
+            pull_push,
+            sample_used,
+            receiver_links,
+            flatten_op,
+            flatten_scratch: FlattenScratch::default(),
+            load,
             skip_fraction: 1e-4,
             frame: Frame::default(),
             last: None,
         }
     }
 
-    /// Direct irradiance at every sender point (step 1).
+    /// What building the operators cost.
+    pub fn load_stats(&self) -> &LoadStats {
+        &self.load
+    }
+
+    /// Direct irradiance at every sender point (step 1); zero, without rays, at the points
+    /// whose sample the pull-push does not use.
     pub fn direct(&self, light: &Light) -> Vec<f32> {
         let b = &self.ib.basis;
         let senders = b.level_offsets[self.sender_levels] as usize;
@@ -102,6 +187,9 @@ impl<'a> CpuRelighter<'a> {
             .into_par_iter()
             .map(|j| {
                 let x = Vec3::from(b.positions[j]);
+                if !self.sample_used[j] {
+                    return [0.0; 3];
+                }
                 let n = Vec3::from(b.normals[j]);
                 let e = light.irradiance(x, n);
                 if e == [0.0; 3] {
@@ -144,21 +232,39 @@ impl Relight for CpuRelighter<'_> {
         }
         let mut times = StageTimes::default();
         let t = Instant::now();
-        let direct = self.direct(light);
+        let mut e = self.direct(light);
         times.direct_ms = t.elapsed().as_secs_f64() * 1e3;
 
         let t = Instant::now();
-        let (e, _) = pull_push_levels(self.ib, &direct, 3, self.sender_levels);
+        self.pull_push.pull(&mut e, 3);
+        let direct = e.clone();
+        self.pull_push.push(&mut e, 3);
         times.project_ms = t.elapsed().as_secs_f64() * 1e3;
+
+        // The previous frame's buffers are reused (every value is overwritten).
+        let n = self.ib.basis.len() * LINK_DIM;
+        let mut i = std::mem::take(&mut self.frame.i);
+        i.resize(n, 0.0);
+        let mut flat = std::mem::take(&mut self.frame.flat);
+        flat.resize(n, 0.0);
 
         let t = Instant::now();
         let max_e = e.iter().fold(0.0f32, |m, v| m.max(v.abs()));
-        let mut i = vec![0.0f32; self.ib.basis.len() * LINK_DIM];
-        let used = self.links.apply(&e, self.skip_fraction * max_e, &mut i);
+        let threshold = self.skip_fraction * max_e;
+        let used = if self.links.receivers.to_native() as usize * LINK_DIM == n {
+            self.receiver_links.apply(&e, threshold, &mut i)
+        } else {
+            // Fewer receivers than points (not written by the bake): the stored links.
+            i.fill(0.0);
+            self.links.apply(&e, threshold, &mut i)
+        };
         times.transport_ms = t.elapsed().as_secs_f64() * 1e3;
 
         let t = Instant::now();
-        let flat = flatten(self.ib, &i, LINK_DIM);
+        match &self.flatten_op {
+            Some(op) => op.apply(&i, LINK_DIM, &mut flat, &mut self.flatten_scratch),
+            None => flat = flatten(self.ib, &i, LINK_DIM),
+        }
         times.flatten_ms = t.elapsed().as_secs_f64() * 1e3;
 
         self.frame = Frame {

@@ -4,6 +4,9 @@ use std::process::Command;
 
 use glam::Vec3;
 use mlt_bake::{bake_scene, BakeOptions, Silent};
+use mlt_format::flatten::flatten;
+use mlt_format::links::LINK_DIM;
+use mlt_format::pull_push::pull_push_levels;
 use mlt_format::{BakedFile, WriteOptions};
 use mlt_view::probe::{evaluate, Probe};
 use mlt_view::{CpuRelighter, Light, Relight};
@@ -183,4 +186,175 @@ fn cornell_box_bleeds_red_and_green_onto_the_white_back_wall() {
     assert_eq!(r.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&r.stderr).contains("not implemented"));
     let _ = std::fs::remove_dir_all(&d);
+}
+
+fn bits(v: &[f32]) -> Vec<u32> {
+    v.iter().map(|x| x.to_bits()).collect()
+}
+
+/// The precomputed operators give what the reference stages give: `e` the same bits as
+/// `pull_push_levels` of the ray-cast samples, `i` the same bits as the stored links' `apply`,
+/// `flat` equal to `flatten(i)` up to rounding; and the same bits for 1 and 2 threads.
+#[test]
+fn precomputed_stages_match_the_reference_stages() {
+    let d = temp("stages");
+    let f = d.join("cornell.mlt");
+    let spec = "builtin:cornell";
+    bake_to(
+        &f,
+        spec,
+        BakeOptions {
+            receiver_levels: Some(4),
+            coarse_count: Some(40),
+            gather_rays: Some(64),
+            ..Default::default()
+        },
+    );
+    let file = BakedFile::open(&f).unwrap();
+    let ib = file.basis().unwrap();
+    let tm = file.transport_meta().unwrap().unwrap();
+    let sender_levels = tm.params.sender_levels as usize;
+    assert!(sender_levels >= 2, "{sender_levels}");
+    let lb = file.links_bytes().unwrap().unwrap();
+    let links = file.access_links(&lb).unwrap();
+    let scene = mlt_scenes::load_scene(spec).unwrap();
+    let caster = scene.build_caster();
+    let light = Light::point(Vec3::new(0.278, 0.5, 0.28), [0.3, 0.25, 0.2]).unwrap();
+
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, 4);
+            let samples = r.direct(&light);
+            let stats = *r.load_stats();
+            (r.relight(&light).clone(), samples, stats)
+        })
+    };
+    let (frame, samples, stats) = run(2);
+    assert!(stats.flatten_entries > 0 && stats.flatten_bytes >= 8 * stats.flatten_entries);
+    let senders = ib.basis.level_offsets[sender_levels] as usize;
+    assert!(stats.direct_points < senders, "{stats:?}");
+
+    let (e, _) = pull_push_levels(&ib, &samples, 3, sender_levels);
+    assert_eq!(bits(&frame.e), bits(&e));
+    assert!(frame.e.iter().any(|&v| v != 0.0));
+    let max_e = e.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    let mut i = vec![0.0f32; ib.basis.len() * LINK_DIM];
+    let used = links.apply(&e, 1e-4 * max_e, &mut i);
+    assert_eq!(frame.senders_used, used);
+    assert_eq!(bits(&frame.i), bits(&i));
+
+    let reference = flatten(&ib, &i, LINK_DIM);
+    let scale = reference.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    assert!(scale > 0.0);
+    assert_eq!(frame.flat.len(), reference.len());
+    let diff = frame
+        .flat
+        .iter()
+        .zip(&reference)
+        .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+    assert!(
+        diff <= 1e-5 * scale,
+        "flat differs by {diff} (scale {scale})"
+    );
+
+    let (one, _, _) = run(1);
+    assert_eq!(bits(&one.direct), bits(&frame.direct));
+    assert_eq!(bits(&one.flat), bits(&frame.flat));
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+/// Load-time and per-frame figures on a baked file: `MLT_RELIGHT_FILE=F cargo test --release
+/// -p mlt-view --test relight -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn relight_figures_for_a_baked_file() {
+    let Ok(path) = std::env::var("MLT_RELIGHT_FILE") else {
+        eprintln!("MLT_RELIGHT_FILE is not set");
+        return;
+    };
+    let frames: usize = std::env::var("MLT_RELIGHT_FRAMES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(20);
+    let file = BakedFile::open(std::path::Path::new(&path)).unwrap();
+    let meta = file.meta().unwrap();
+    let ib = file.basis().unwrap();
+    let tm = file.transport_meta().unwrap().unwrap();
+    let lb = file.links_bytes().unwrap().unwrap();
+    let links = file.access_links(&lb).unwrap();
+    let spec = std::env::var("MLT_RELIGHT_SCENE").unwrap_or(meta.scene.source.clone());
+    let scene = mlt_scenes::load_scene(&spec).unwrap();
+    let caster = scene.build_caster();
+    let mut light = Light::from_info(&meta.light).unwrap();
+    let mut r = CpuRelighter::new(
+        &ib,
+        links,
+        caster.as_ref(),
+        tm.params.sender_levels as usize,
+        8,
+    );
+    eprintln!("load: {:?}", r.load_stats());
+    let (lo, hi) = (
+        Vec3::from(meta.scene.bounds_min),
+        Vec3::from(meta.scene.bounds_max),
+    );
+    let radius = 0.05 * (hi - lo).length();
+    let centre = light.position;
+    let mut t: [Vec<f64>; 4] = Default::default();
+    let mut live = Vec::new();
+    for f in 0..frames {
+        let a = std::f32::consts::TAU * f as f32 / frames as f32;
+        light.position = centre + Vec3::new(radius * a.cos(), 0.0, radius * a.sin());
+        let frame = r.relight(&light);
+        t[0].push(frame.times.direct_ms);
+        t[1].push(frame.times.project_ms);
+        t[2].push(frame.times.transport_ms);
+        t[3].push(frame.times.flatten_ms);
+        live.push(
+            frame
+                .i
+                .chunks(LINK_DIM)
+                .filter(|c| c.iter().any(|&v| v != 0.0))
+                .count(),
+        );
+    }
+    let med = |v: &mut Vec<f64>| {
+        v.sort_by(|a, b| a.total_cmp(b));
+        v[v.len() / 2]
+    };
+    let m: Vec<f64> = t.iter_mut().map(med).collect();
+    eprintln!(
+        "median over {frames} frames: direct {:.2} ms, pull-push {:.3} ms, S e {:.2} ms, flatten {:.2} ms, total {:.2} ms; lit receivers {:?}",
+        m[0],
+        m[1],
+        m[2],
+        m[3],
+        m.iter().sum::<f64>(),
+        live.iter().min()
+    );
+    // The reference stages (R-tree queries per frame, f16 links), two frames.
+    let sl = tm.params.sender_levels as usize;
+    for _ in 0..2 {
+        let samples = r.direct(&light);
+        let t0 = std::time::Instant::now();
+        let (e, _) = pull_push_levels(&ib, &samples, 3, sl);
+        let t1 = std::time::Instant::now();
+        let mut i = vec![0.0f32; ib.basis.len() * LINK_DIM];
+        links.apply(&e, 0.0, &mut i);
+        let t2 = std::time::Instant::now();
+        let flat = flatten(&ib, &i, LINK_DIM);
+        let t3 = std::time::Instant::now();
+        let ms = |a: std::time::Instant, b: std::time::Instant| (b - a).as_secs_f64() * 1e3;
+        eprintln!(
+            "reference stages: pull-push {:.2} ms, S e (f16, sender-major) {:.2} ms, flatten {:.1} ms ({} values)",
+            ms(t0, t1),
+            ms(t1, t2),
+            ms(t2, t3),
+            flat.len()
+        );
+    }
 }
