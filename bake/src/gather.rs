@@ -140,10 +140,12 @@ pub fn gather(
     counts
 }
 
-/// Van der Corput radical inverse in base 2.
+/// Van der Corput radical inverse in base 2, in `[0, 1)`: the 24 leading bits of the
+/// reversed index, exact in f32 (rounding all 32 bits to f32 gave 1.0 for the largest
+/// indices).
 #[inline]
 pub fn radical_inverse(k: u32) -> f32 {
-    (k.reverse_bits() as f64 / 4_294_967_296.0) as f32
+    (k.reverse_bits() >> 8) as f32 * (1.0 / 16_777_216.0)
 }
 
 /// The magnitude of a link: the largest length of its three per-channel vectors.
@@ -163,4 +165,78 @@ pub fn link_norm(v: &[f32; LINK_DIM]) -> f32 {
 pub fn link_distance(a: &[f32; LINK_DIM], b: &[f32; LINK_DIM]) -> f32 {
     let d: [f32; LINK_DIM] = std::array::from_fn(|k| a[k] - b[k]);
     link_norm(&d)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mlt_format::Basis;
+    use mlt_scenes::SphereCaster;
+
+    /// A one-level basis on the 12 vertices of an icosahedron inscribed in the closed sphere
+    /// of radius 2, normals pointing inwards, supports wide enough to overlap.
+    fn sphere_basis() -> IndexedBasis {
+        let mesh = mlt_scenes::builtin::icosphere(2.0, 0, [0.5; 3]);
+        let mut b = Basis::default();
+        for p in &mesh.positions {
+            b.positions.push(p.to_array());
+            b.normals.push((-p.normalize()).to_array());
+            b.radii.push(3.2);
+        }
+        b.level_offsets = vec![0, b.positions.len() as u32];
+        b.disk_radii = vec![2.0];
+        IndexedBasis::build(b).unwrap()
+    }
+
+    #[test]
+    fn a_closed_sphere_gathers_rho_along_the_normal_with_any_ray_count() {
+        // Eq. 16 with the midpoint rule in cos(theta): every ray hits, the sender weights at
+        // the hit sum to one (Eq. 2), so n . sum_j T'_ij = rho exactly, even for one ray
+        // (cos 1/2, weight 2); the tangential part cancels only with many rays.
+        let ib = sphere_basis();
+        let rho = [0.2f32, 0.5, 0.9];
+        let caster = SphereCaster::new(Vec3::ZERO, 2.0, rho);
+        let eps = caster.ray_epsilon();
+        for rays in [1u32, 2, 3, 256] {
+            for i in 0..ib.basis.len() {
+                let mut s = Scratch::new(ib.basis.len());
+                let counts = gather(&ib, &caster, i, 1, rays, 7, eps, &mut s);
+                assert_eq!((counts.rays, counts.unsupported), (rays as u64, 0));
+                let n = Vec3::from(ib.basis.normals[i]);
+                let mut sum = [Vec3::ZERO; 3];
+                for &j in &s.touched {
+                    let v = s.get(j);
+                    for (c, sc) in sum.iter_mut().enumerate() {
+                        *sc += Vec3::new(v[3 * c], v[3 * c + 1], v[3 * c + 2]);
+                    }
+                }
+                for c in 0..3 {
+                    assert!(sum[c].is_finite());
+                    let along = sum[c].dot(n);
+                    assert!(
+                        (along - rho[c]).abs() < 1e-4 * rho[c].max(1.0),
+                        "{rays}: {along}"
+                    );
+                    if rays == 256 {
+                        let tangential = (sum[c] - along * n).length();
+                        assert!(tangential < 0.01 * rho[c], "{tangential}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn norms_and_the_radical_inverse_at_their_edges() {
+        assert_eq!(link_norm(&[0.0; LINK_DIM]), 0.0);
+        let mut v = [0.0f32; LINK_DIM];
+        v[7] = -3.0;
+        assert_eq!(link_norm(&v), 3.0);
+        assert_eq!(link_distance(&v, &v), 0.0);
+        assert_eq!(radical_inverse(0), 0.0);
+        assert_eq!(radical_inverse(1), 0.5);
+        assert_eq!(radical_inverse(2), 0.25);
+        let top = radical_inverse(u32::MAX);
+        assert!(top < 1.0 && top > 0.99, "{top}");
+    }
 }

@@ -237,6 +237,11 @@ pub fn bake_scene(
     let rtree_nodes: u64 = ib.trees.iter().map(|t| t.node_count() as u64).sum();
     obs.done("r-trees", rtrees_s, &format!("{rtree_nodes} nodes"));
 
+    if let Some(w) = light_warning(scene, caster.as_ref()) {
+        obs.warn(&w);
+        warnings.push(w);
+    }
+
     let unsupported = count_points_without_coarser_support(&ib);
     let points_placed = ib.basis.len() as u64;
     if unsupported > 0 {
@@ -367,6 +372,50 @@ fn light_info(scene: &Scene) -> LightInfo {
         }
         .into(),
     }
+}
+
+/// Rays cast from the light to see whether it lights anything.
+const LIGHT_PROBE_RAYS: u32 = 1024;
+
+/// A warning when the scene's default light reaches no surface: a spot pointing at nothing,
+/// a point light beside an open scene. `LIGHT_PROBE_RAYS` rays in the cone (or
+/// over the sphere) from the light; none hitting a surface means the
+/// default light gives a black image (the bake itself does not depend on the light).
+pub fn light_warning(scene: &Scene, caster: &dyn mlt_scenes::RayCaster) -> Option<String> {
+    let l = &scene.light;
+    let origin = Vec3::from(l.position);
+    let (axis, cos_max) = match (l.kind, l.direction, l.cone_deg) {
+        (LightKind::Spot, Some(d), Some(c)) => (
+            Vec3::from(d).normalize_or_zero(),
+            (0.5 * c).to_radians().cos(),
+        ),
+        _ => (Vec3::Z, -1.0),
+    };
+    if axis == Vec3::ZERO || !origin.is_finite() {
+        return None;
+    }
+    let mut rng = crate::rng::Rng::new(1, crate::rng::Stream::Hmd, u64::MAX);
+    for _ in 0..LIGHT_PROBE_RAYS {
+        let d = crate::sampling::uniform_cone(axis, cos_max, rng.next_f32(), rng.next_f32());
+        if caster.intersect(origin, d, 0.0, f32::INFINITY).is_some() {
+            return None;
+        }
+    }
+    let what = if l.kind == LightKind::Spot {
+        "spot light"
+    } else {
+        "point light"
+    };
+    Some(format!(
+        "{}: the default {what} at {:?} lights no surface ({LIGHT_PROBE_RAYS} rays{} hit nothing): its images will have no direct or indirect light",
+        scene.source,
+        l.position,
+        if l.kind == LightKind::Spot {
+            " in its cone"
+        } else {
+            ""
+        }
+    ))
 }
 
 /// Points of levels >= 1 at which no coarser level has support.

@@ -33,6 +33,19 @@ pub fn cosine_hemisphere(n: Vec3, u1: f32, u2: f32) -> Vec3 {
     (t * (r * phi.cos()) + b * (r * phi.sin()) + n * z).normalize()
 }
 
+/// Direction in the cone of half-angle `acos(cos_max)` about the unit axis `a`, uniform in
+/// solid angle, from two uniform numbers in `[0, 1)`. `cos_max` is clamped to `[-1, 1]`
+/// (`-1`: the whole sphere).
+#[inline]
+pub fn uniform_cone(a: Vec3, cos_max: f32, u1: f32, u2: f32) -> Vec3 {
+    let cos_max = cos_max.clamp(-1.0, 1.0);
+    let z = 1.0 - u1 * (1.0 - cos_max);
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    let phi = std::f32::consts::TAU * u2;
+    let (t, b) = tangent_frame(a);
+    (t * (r * phi.cos()) + b * (r * phi.sin()) + a * z).normalize()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -67,6 +80,46 @@ mod tests {
         let mean = sum / m as f64;
         let sd = (0.5 - (2.0f64 / 3.0).powi(2)).sqrt() / (m as f64).sqrt();
         assert!((mean - 2.0 / 3.0).abs() < 5.0 * sd, "{mean}");
+    }
+
+    #[test]
+    fn frames_stay_orthonormal_next_to_the_pole_singularity() {
+        // The branch at n.z = 0 and just below -1 (where 1 / (sign + n.z) is largest).
+        for n in [
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::new(0.0, 1.0, -0.0),
+            Vec3::new(1e-4, 0.0, -1.0).normalize(),
+            Vec3::new(0.0, 1e-7, -1.0).normalize(),
+            Vec3::new(-1e-7, 0.0, 1.0).normalize(),
+        ] {
+            let (t, b) = tangent_frame(n);
+            assert!(t.is_finite() && b.is_finite(), "{n}");
+            assert!(t.dot(n).abs() < 1e-5 && b.dot(n).abs() < 1e-5 && t.dot(b).abs() < 1e-5);
+            assert!((t.length() - 1.0).abs() < 1e-5 && (b.length() - 1.0).abs() < 1e-5);
+        }
+    }
+
+    #[test]
+    fn samplers_at_the_ends_of_the_unit_interval() {
+        let n = Vec3::new(0.0, 0.0, 1.0);
+        for (u1, u2) in [(0.0, 0.0), (0.0, 0.9999999), (0.9999999, 0.5), (1.0, 1.0)] {
+            let d = cosine_hemisphere(n, u1, u2);
+            assert!(d.is_finite() && (d.length() - 1.0).abs() < 1e-5 && d.z >= -1e-6);
+            let s = uniform_sphere(u1, u2);
+            assert!(s.is_finite() && (s.length() - 1.0).abs() < 1e-5);
+            // A zero-angle cone is its axis; a cone of cos -1 (and beyond) is the sphere.
+            let c = uniform_cone(n, 1.0, u1, u2);
+            assert!((c - n).length() < 1e-5, "{c}");
+            let c = uniform_cone(n, -3.0, u1, u2);
+            assert!(c.is_finite() && (c.length() - 1.0).abs() < 1e-5);
+        }
+        // Inside the cone: cos >= cos_max.
+        let a = Vec3::new(0.3, -0.9, 0.1).normalize();
+        let mut r = Rng::new(4, Stream::Hmd, 2);
+        for _ in 0..1000 {
+            let d = uniform_cone(a, 0.8, r.next_f32(), r.next_f32());
+            assert!(d.dot(a) >= 0.8 - 1e-5);
+        }
     }
 
     #[test]

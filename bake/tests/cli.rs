@@ -195,3 +195,68 @@ fn info_on_a_damaged_file_fails_with_its_name() {
     );
     let _ = std::fs::remove_dir_all(&d);
 }
+
+#[test]
+fn non_finite_numbers_and_bad_bounce_counts_on_the_command_line_are_named() {
+    let d = temp("nan");
+    let out = d.join("x.mlt");
+    for (args, needle) in [
+        (vec!["--epsilon", "NaN"], "epsilon"),
+        (vec!["--bounce-epsilon", "inf"], "bounce epsilon"),
+        (vec!["--coarse-radius=-inf"], "coarse radius"),
+        (vec!["--bounce-tolerance", "nan"], "bounce tolerance"),
+        (vec!["--bounces", "autox"], "auto"),
+        (vec!["--bounces", "auto:0x"], "bounce count"),
+        (vec!["--bounces", "0"], "bounces must be at least 1"),
+    ] {
+        let coarse: &[&str] = if args[0].starts_with("--coarse-radius") {
+            &[]
+        } else {
+            &["--coarse-count", "12"]
+        };
+        let r = bake()
+            .arg("builtin:sphere")
+            .args(["--receiver-levels", "2"])
+            .args(coarse)
+            .args(&args)
+            .arg("-o")
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert!(!r.status.success(), "{args:?} accepted");
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert!(err.contains(needle), "{args:?}: {err}");
+        assert!(!out.exists(), "{args:?} wrote a file");
+    }
+    // `auto` and `auto:N` parse, and the file records the choice.
+    let r = bake()
+        .args([
+            "builtin:sphere?albedo=0.8",
+            "--receiver-levels",
+            "2",
+            "--coarse-count",
+            "12",
+            "--sender-levels",
+            "1",
+            "--gather-rays",
+            "32",
+            "--epsilon",
+            "1e-4",
+            "--bounces",
+            "auto:9",
+            "--json",
+            "-o",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&r.stdout).unwrap();
+    assert_eq!(v["report"]["bounce_mode"], "auto");
+    assert_eq!(v["report"]["bounce_cap"], 9);
+    // 0.8^9 = 13 % > 1 %: the cap stops the series, and the bake says so.
+    assert_eq!(v["transport"]["stats"]["bounces"], 9);
+    assert_eq!(v["report"]["error"]["series_converged"], false);
+    assert!(String::from_utf8_lossy(&r.stderr).contains("cap of 9 bounces"));
+    let _ = std::fs::remove_dir_all(&d);
+}

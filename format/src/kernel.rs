@@ -22,9 +22,10 @@ pub(crate) fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
 ///
 /// `K(0) = 1`, `K(1) = 0`, `K'(0) = K'(1) = 0`. Negative arguments (which distances never
 /// produce) are clamped to 0.
+/// NaN gives 0 (no support), never NaN.
 #[inline(always)]
 pub fn kernel(r: f32) -> f32 {
-    if r >= 1.0 {
+    if !(r < 1.0) {
         0.0
     } else if r <= 0.0 {
         1.0
@@ -54,19 +55,24 @@ pub fn squashed_distance(x: [f32; 3], xj: [f32; 3], nj: [f32; 3]) -> f32 {
 /// The weight function of Eq. 8: `w_j(x, n) = K(dist_j(x) / r_j) * max(0, n . n_j)^2`.
 ///
 /// Returns exactly 0 outside the support (`dist_j(x) >= r_j`), for back-facing normals
-/// (`n . n_j <= 0`) and for a non-positive or non-finite radius.
+/// (`n . n_j <= 0`), for a non-positive or non-finite radius and for non-finite inputs.
+/// The offset is divided by `r_j` before it is squared, so the result does not depend on the
+/// scene's scale (no underflow of `r_j^2` for radii below 1e-19, no overflow above 1e19).
 #[inline(always)]
 pub fn weight(x: [f32; 3], n: [f32; 3], xj: [f32; 3], nj: [f32; 3], rj: f32) -> f32 {
     let c = dot(n, nj);
-    if c <= 0.0 || rj.is_nan() || rj <= 0.0 {
+    if !(c > 0.0 && rj > 0.0 && rj.is_finite()) {
         return 0.0;
     }
-    let d2 = squashed_distance_sq(x, xj, nj);
-    let r2 = rj * rj;
-    if d2.is_nan() || d2 >= r2 {
+    let inv = 1.0 / rj;
+    let d = sub(x, xj);
+    let v = [d[0] * inv, d[1] * inv, d[2] * inv];
+    let vn = dot(v, nj);
+    let q = dot(v, v) + (2.0 * F_SQUASH + F_SQUASH * F_SQUASH) * vn * vn;
+    if !(q < 1.0) {
         return 0.0;
     }
-    kernel((d2 / r2).sqrt()) * c * c
+    kernel(q.sqrt()) * c * c
 }
 
 /// The symmetric Poisson-disk distance of Eq. 11:
@@ -170,6 +176,76 @@ mod tests {
         // Perpendicular or opposite normals: infinitely far.
         assert_eq!(poisson_distance(a, N, b, [1.0, 0.0, 0.0]), f32::INFINITY);
         assert_eq!(poisson_distance(a, N, a, [0.0, 0.0, -1.0]), f32::INFINITY);
+    }
+
+    #[test]
+    fn kernel_near_both_ends_and_for_nan() {
+        assert!((kernel(1e-7) - 1.0).abs() < 1e-6);
+        assert!(kernel(1.0 - 1e-7) >= 0.0 && kernel(1.0 - 1e-7) < 1e-12);
+        assert_eq!(kernel(f32::NAN), 0.0);
+        assert_eq!(kernel(f32::INFINITY), 0.0);
+        assert_eq!(kernel(f32::NEG_INFINITY), 1.0);
+        // Never outside [0, 1].
+        for i in 0..=10_000 {
+            let k = kernel(i as f32 / 10_000.0);
+            assert!((0.0..=1.0).contains(&k), "{i}: {k}");
+        }
+    }
+
+    #[test]
+    fn weight_at_r_zero_and_r_j_in_every_direction_and_at_every_scale() {
+        // Directions in the tangent plane, along the normal and in between; the support's
+        // edge in direction u is at r_j / |u + F <u, n> n|.
+        let dirs = [
+            [1.0f32, 0.0, 0.0],
+            [0.0, 0.0, 1.0],
+            [0.0, 0.0, -1.0],
+            [0.6, 0.0, 0.8],
+        ];
+        for scale in [1e-30f32, 1e-20, 1e-4, 1.0, 1e4, 1e20, 1e30] {
+            let xj = [3.0 * scale, -2.0 * scale, 0.5 * scale];
+            let rj = 0.25 * scale;
+            // r = 0: the full weight, at every scale (r_j^2 would underflow at 1e-20).
+            assert_eq!(weight(xj, N, xj, N, rj), 1.0, "scale {scale}");
+            for u in dirs {
+                let stretch = squashed_distance(u, [0.0; 3], N);
+                let at = |f: f32| {
+                    let t = f * rj / stretch;
+                    [xj[0] + t * u[0], xj[1] + t * u[1], xj[2] + t * u[2]]
+                };
+                // Just outside and well outside: exactly 0.
+                assert_eq!(weight(at(1.0001), N, xj, N, rj), 0.0, "{scale} {u:?}");
+                assert_eq!(weight(at(2.0), N, xj, N, rj), 0.0);
+                // Just inside: tiny, non-negative; halfway: K(1/2) = 1/2.
+                let w = weight(at(0.999), N, xj, N, rj);
+                assert!((0.0..1e-4).contains(&w), "{scale} {u:?}: {w}");
+                let w = weight(at(0.5), N, xj, N, rj);
+                assert!((w - 0.5).abs() < 1e-3, "{scale} {u:?}: {w}");
+            }
+        }
+    }
+
+    #[test]
+    fn weight_at_and_around_90_degrees_and_for_bad_inputs() {
+        let x = [0.0; 3];
+        // cos = +-1e-6 about 90 degrees: the weight is c^2 (1e-12) or exactly 0.
+        let tilt = |c: f32| [(1.0 - c * c).sqrt(), 0.0, c];
+        let w = weight(x, tilt(1e-6), x, N, 1.0);
+        assert!(w > 0.0 && w < 2e-12, "{w}");
+        assert_eq!(weight(x, tilt(-1e-6), x, N, 1.0), 0.0);
+        assert_eq!(weight(x, tilt(0.0), x, N, 1.0), 0.0);
+        // Non-finite positions, normals and radii give 0, never NaN.
+        let nan = f32::NAN;
+        assert_eq!(weight([nan, 0.0, 0.0], N, x, N, 1.0), 0.0);
+        assert_eq!(weight(x, [nan, 0.0, 1.0], x, N, 1.0), 0.0);
+        assert_eq!(weight(x, N, [f32::INFINITY, 0.0, 0.0], N, 1.0), 0.0);
+        assert_eq!(weight(x, N, x, N, f32::INFINITY), 0.0);
+        assert_eq!(weight(x, N, x, N, -1.0), 0.0);
+        // The Poisson-disk distance at 90 degrees and for coincident points.
+        assert_eq!(poisson_distance(x, N, x, tilt(0.0)), f32::INFINITY);
+        assert_eq!(poisson_distance(x, N, x, N), 0.0);
+        let d = poisson_distance(x, N, [1.0, 0.0, 0.0], tilt(1e-3));
+        assert!(d.is_finite() && d > 1e5, "{d}");
     }
 
     #[test]

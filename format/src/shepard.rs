@@ -224,6 +224,74 @@ pub(crate) mod tests {
         assert_eq!(out[0], 0.0);
     }
 
+    fn single_point(radius: f32) -> IndexedBasis {
+        let mut b = Basis::default();
+        b.positions.push([0.0; 3]);
+        b.normals.push([0.0, 0.0, 1.0]);
+        b.radii.push(radius);
+        b.level_offsets = vec![0, 1];
+        b.disk_radii = vec![radius];
+        IndexedBasis::build(b).unwrap()
+    }
+
+    #[test]
+    fn the_min_weight_sum_threshold_decides_support_and_nothing_else() {
+        // Query normals tilted so that the weight is c^2 just below and just above
+        // MIN_WEIGHT_SUM: below, the level has no support and nothing is divided; above, the
+        // lone function normalises to exactly 1 (B_j = w_j / w_j), whatever the tiny weight.
+        let ib = single_point(1.0);
+        let tilt = |c: f32| [(1.0 - c * c).sqrt(), 0.0, c];
+        let below = (0.5 * MIN_WEIGHT_SUM).sqrt();
+        let above = (2.0 * MIN_WEIGHT_SUM).sqrt();
+        let alpha = [3.0f32];
+        let mut out = [f32::NAN];
+        let s = ib.reconstruct(&alpha, 1, 0..1, [0.0; 3], tilt(below), &mut out);
+        assert_eq!(s.unsupported, 1);
+        assert_eq!(out[0], 0.0);
+        let mut called = false;
+        assert!(!ib.for_each_basis_value(0, [0.0; 3], tilt(below), |_, _| called = true));
+        assert!(!called);
+        let s = ib.reconstruct(&alpha, 1, 0..1, [0.0; 3], tilt(above), &mut out);
+        assert_eq!(s.supported, 1);
+        assert!((out[0] - 3.0).abs() < 1e-5, "{}", out[0]);
+        let mut total = 0.0;
+        assert!(ib.for_each_basis_value(0, [0.0; 3], tilt(above), |_, b| total += b));
+        assert!((total - 1.0).abs() < 1e-6, "{total}");
+    }
+
+    #[test]
+    fn r_zero_gives_the_coefficient_and_r_j_gives_no_support() {
+        let ib = single_point(0.5);
+        let n = [0.0, 0.0, 1.0];
+        let alpha = [7.0f32];
+        let mut out = [0.0];
+        assert_eq!(ib.weight_sum(0, [0.0; 3], n), 1.0);
+        ib.reconstruct(&alpha, 1, 0..1, [0.0; 3], n, &mut out);
+        assert_eq!(out[0], 7.0);
+        // Exactly at r_j in the tangent plane, and at r_j / (1 + F_squash) along the normal.
+        for x in [[0.5, 0.0, 0.0], [0.0, 0.0, 0.5 / 3.0]] {
+            assert_eq!(ib.weight_sum(0, x, n), 0.0);
+            let s = ib.reconstruct(&alpha, 1, 0..1, x, n, &mut out);
+            assert_eq!((s.unsupported, out[0]), (1, 0.0));
+        }
+    }
+
+    #[test]
+    fn non_finite_queries_find_no_support() {
+        let ib = plane_basis(2, 3);
+        let alpha = vec![1.0f32; ib.basis.len()];
+        let mut out = [f32::NAN];
+        for (x, n) in [
+            ([f32::NAN, 0.5, 0.0], [0.0, 0.0, 1.0]),
+            ([0.5, f32::INFINITY, 0.0], [0.0, 0.0, 1.0]),
+            ([0.5, 0.5, 0.0], [f32::NAN, 0.0, 1.0]),
+        ] {
+            let s = ib.reconstruct(&alpha, 1, 0..2, x, n, &mut out);
+            assert_eq!(s.unsupported, 2, "{x:?} {n:?}");
+            assert_eq!(out[0], 0.0);
+        }
+    }
+
     #[test]
     fn weight_sums_near_zero_stay_finite() {
         // A single point; query at the rim of its support, where the weight is tiny.
