@@ -25,7 +25,7 @@ pub(crate) fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
 /// NaN gives 0 (no support), never NaN.
 #[inline(always)]
 pub fn kernel(r: f32) -> f32 {
-    if !(r < 1.0) {
+    if r >= 1.0 || r.is_nan() {
         0.0
     } else if r <= 0.0 {
         1.0
@@ -69,7 +69,7 @@ pub fn weight(x: [f32; 3], n: [f32; 3], xj: [f32; 3], nj: [f32; 3], rj: f32) -> 
     let v = [d[0] * inv, d[1] * inv, d[2] * inv];
     let vn = dot(v, nj);
     let q = dot(v, v) + (2.0 * F_SQUASH + F_SQUASH * F_SQUASH) * vn * vn;
-    if !(q < 1.0) {
+    if q >= 1.0 || q.is_nan() {
         return 0.0;
     }
     kernel(q.sqrt()) * c * c
