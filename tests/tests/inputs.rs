@@ -113,9 +113,7 @@ fn a_manifest_bake_table_with_nan_names_the_manifest() {
         "[scene]\nsource = \"builtin:sphere\"\n[bake]\nepsilon = nan\n",
     )
     .unwrap();
-    let e = mlt_scenes::load_scene(path.to_str().unwrap())
-        .err()
-        .expect("accepted");
+    let e = mlt_scenes::load_scene(path.to_str().unwrap()).expect_err("accepted");
     let msg = e.to_string();
     assert!(
         msg.contains("nan_bake.toml") && msg.contains("[bake] epsilon"),
