@@ -424,14 +424,24 @@ mod bench {
         let mut i = vec![0.0f32; ib.basis.len() * LINK_DIM];
         let mut flat = vec![0.0f32; i.len()];
         let mut scratch = FlattenScratch::default();
+        let scalar: Vec<f32> = i.iter().step_by(LINK_DIM).copied().collect();
+        let mut flat1 = vec![0.0f32; scalar.len()];
+        let mut scratch1 = FlattenScratch::default();
         for _ in 0..7 {
             let t = Instant::now();
             rl.apply(&e, 0.0, &mut i);
             let t1 = Instant::now();
             op.apply(&i, 9, &mut flat, &mut scratch);
             let t2 = Instant::now();
+            op.apply(&scalar, 1, &mut flat1, &mut scratch1);
+            let t3 = Instant::now();
             let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
-            eprintln!("S e {:.2} ms, flatten {:.2} ms", ms(t, t1), ms(t1, t2));
+            eprintln!(
+                "S e {:.2} ms, flatten {:.2} ms (one float per point: {:.2} ms)",
+                ms(t, t1),
+                ms(t1, t2),
+                ms(t2, t3)
+            );
         }
     }
 }
