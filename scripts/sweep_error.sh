@@ -1,0 +1,132 @@
+#!/usr/bin/env bash
+# Error against run time (issue 5): for one scene, bake with a range of settings (epsilon, and
+# gather rays and receiver levels at the paper's epsilon), and for each record the bake time,
+# links, file size, the median per-frame CPU relighting time with a moving light, and the error
+# of the headless indirect and final images against the brute-force reference (view --headless
+# --reference) for several light positions (averaged over the lights).
+#
+# Usage: scripts/sweep_error.sh SCENE NAME [OUT_PREFIX]
+#   SCENE       manifest / builtin name given to bake (e.g. builtin:cornell, scenes/sponza.toml)
+#   NAME        short name used in the output file names (docs/error_NAME.{csv,md} and
+#               docs/error_NAME_vs_{bake,frame}.png unless OUT_PREFIX is given)
+# Environment (defaults in brackets):
+#   SETTINGS    one setting per line, "LABEL|PAPER(0/1)|bake arguments"
+#               [epsilon 0.1, 0.05, 0.025 (paper), 0.0125; gather rays 64; 5 receiver levels]
+#   LIGHTS      light positions x,y,z separated by spaces [the scene's light]
+#   WIDTH HEIGHT image size of the comparison [128 128]
+#   SPP         reference paths per pixel [512]
+#   FRAMES      frames of the moving-light timing [16]
+#   WORK        scratch directory [target/sweep_NAME]
+#   BIN         directory of the release binaries [target/release]
+# Build first: cargo build --release -p mlt-bake -p mlt-view
+set -euo pipefail
+
+SCENE=${1:?usage: sweep_error.sh SCENE NAME [OUT_PREFIX]}
+NAME=${2:?usage: sweep_error.sh SCENE NAME [OUT_PREFIX]}
+ROOT=$(cd "$(dirname "$0")/.." && pwd)
+OUT=${3:-$ROOT/docs/error_$NAME}
+BIN=${BIN:-$ROOT/target/release}
+WORK=${WORK:-$ROOT/target/sweep_$NAME}
+WIDTH=${WIDTH:-128}
+HEIGHT=${HEIGHT:-128}
+SPP=${SPP:-512}
+FRAMES=${FRAMES:-16}
+SETTINGS=${SETTINGS:-"eps 0.1|0|--epsilon 0.1
+eps 0.05|0|--epsilon 0.05
+eps 0.025|1|--epsilon 0.025
+eps 0.0125|0|--epsilon 0.0125
+eps 0.025, 64 rays|0|--epsilon 0.025 --gather-rays 64
+eps 0.025, 5 levels|0|--epsilon 0.025 --receiver-levels 5"}
+for b in bake view compare plot_sweep; do
+  [[ -x $BIN/$b ]] || { echo "missing $BIN/$b: cargo build --release -p mlt-bake -p mlt-view" >&2; exit 1; }
+done
+mkdir -p "$WORK" "$(dirname "$OUT")"
+CMD="scripts/sweep_error.sh $SCENE $NAME (WIDTH=$WIDTH HEIGHT=$HEIGHT SPP=$SPP FRAMES=$FRAMES LIGHTS=\"${LIGHTS:-default}\")"
+
+# 1. Bakes, file sizes and frame times.
+i=0
+declare -a FILES LABELS PAPERS
+while IFS= read -r line; do
+  [[ -z $line ]] && continue
+  IFS='|' read -r label paper args <<<"$line"
+  f=$WORK/s$i.mlt
+  if [[ ! -s $f || ! -s $WORK/s$i.json ]]; then
+    echo "== bake [$label]: $BIN/bake $SCENE $args" >&2
+    # shellcheck disable=SC2086
+    "$BIN/bake" "$SCENE" -o "$f" --stats-json "$WORK/s$i.json" -q $args >&2
+  fi
+  if [[ ! -s $WORK/s$i.frames.json ]]; then
+    "$BIN/view" "$f" --frames "$FRAMES" --timings-out "$WORK/s$i.frames.json" >&2
+  fi
+  FILES[i]=$f; LABELS[i]=$label; PAPERS[i]=$paper
+  i=$((i + 1))
+done <<<"$SETTINGS"
+n=$i
+
+# 2. Light positions: the scene's own light unless given.
+if [[ -z ${LIGHTS:-} ]]; then
+  LIGHTS=$(jq -r '.meta.light.position | map(tostring) | join(",")' "$WORK/s0.json")
+fi
+
+# 3. The reference per light (from the first file: all share camera and scene).
+k=0
+for L in $LIGHTS; do
+  r=$WORK/ref$k
+  if [[ ! -s $r/reference.json ]]; then
+    echo "== reference, light $L, $SPP spp" >&2
+    "$BIN/view" "${FILES[0]}" --headless --out "$r" --width "$WIDTH" --height "$HEIGHT" \
+      --light-pos "$L" --reference "$SPP" >&2
+  fi
+  k=$((k + 1))
+done
+nl=$k
+
+# 4. Each setting's images against the references.
+CSV=$OUT.csv
+echo "label,paper,epsilon,gather_rays,receiver_levels,bake_s,links,file_bytes,frame_ms,indirect_rel_rmse,indirect_mean_rel,indirect_ratio,final_rel_rmse,final_mean_rel,final_ratio,noise_indirect_rel_rmse,noise_final_rel_rmse,lights" >"$CSV"
+for ((i = 0; i < n; i++)); do
+  s=$WORK/s$i
+  k=0; cmps=()
+  for L in $LIGHTS; do
+    d=$s.light$k
+    "$BIN/view" "${FILES[i]}" --headless --out "$d" --width "$WIDTH" --height "$HEIGHT" --light-pos "$L" >&2
+    "$BIN/compare" "$WORK/ref$k" "$d" --json >"$d.cmp.json"
+    cmps+=("$d.cmp.json")
+    k=$((k + 1))
+  done
+  avg() { jq -s "map($1) | add / length" "${cmps[@]}"; }
+  printf '%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s,%s\n' \
+    "${LABELS[i]//,/;}" "${PAPERS[i]}" \
+    "$(jq '.transport.params.epsilon' "$s.json")" \
+    "$(jq '.transport.params.gather_rays' "$s.json")" \
+    "$(jq '.transport.params.receiver_levels' "$s.json")" \
+    "$(jq '.timings.total_s' "$s.json")" \
+    "$(jq '.transport.stats.links' "$s.json")" \
+    "$(jq '.file_bytes' "$s.json")" \
+    "$(jq '.median_ms.total // .cpu_median_ms.total' "$s.frames.json")" \
+    "$(avg .indirect.relative_rmse)" "$(avg .indirect.mean_relative_error_lit)" "$(avg .indirect.ratio_of_means)" \
+    "$(avg .final_image.relative_rmse)" "$(avg .final_image.mean_relative_error_lit)" "$(avg .final_image.ratio_of_means)" \
+    "$(avg .indirect.noise_relative_rmse)" "$(avg .final_image.noise_relative_rmse)" \
+    "$nl" >>"$CSV"
+done
+
+# 5. Markdown table and plots.
+MD=$OUT.md
+{
+  echo "# Error against run time: $NAME"
+  echo
+  echo "Made by \`$CMD\` on $(nproc) cores ($(date -u +%Y-%m-%d))."
+  echo "Errors are against the brute-force path-traced reference (\`view --headless --reference $SPP\`,"
+  echo "${WIDTH}x${HEIGHT} pixels), on luminance, averaged over $nl light position(s): $LIGHTS."
+  echo "Relative RMSE = RMS(test - ref) / mean(ref); mean rel. error over lit pixels (ref > 1 % of its mean);"
+  echo "ratio = mean(test) / mean(ref). The reference's own noise floor under the relative RMSE is given last."
+  echo "Frame time: median CPU relighting (direct at senders, pull-push, S e, flatten) over $FRAMES frames with a moving light."
+  echo
+  echo "| setting | paper | epsilon | gather rays | levels | bake (s) | links | file (MB) | frame (ms) | indirect rel. RMSE | indirect mean rel. | indirect ratio | final rel. RMSE | final mean rel. | final ratio | ref. noise (indirect / final) |"
+  echo "|---|:-:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+  tail -n +2 "$CSV" | awk -F, '{printf "| %s | %s | %g | %d | %d | %.1f | %d | %.2f | %.1f | %.3f | %.3f | %.3f | %.3f | %.3f | %.3f | %.3f / %.3f |\n", $1, ($2 == 1 ? "yes" : ""), $3, $4, $5, $6, $7, $8 / 1e6, $9, $10, $11, $12, $13, $14, $15, $16, $17}'
+  echo
+  echo "![error vs bake time](error_${NAME}_vs_bake.png) ![error vs frame time](error_${NAME}_vs_frame.png)"
+} >"$MD"
+"$BIN/plot_sweep" "$CSV" --out "$OUT" --title "$NAME"
+echo "wrote $CSV, $MD, ${OUT}_vs_bake.png, ${OUT}_vs_frame.png" >&2

@@ -1,0 +1,715 @@
+//! An independent brute-force reference: Monte Carlo path tracing of the same scene, light and
+//! camera as the viewer, using nothing of the meshless basis (only the scene's [`RayCaster`]
+//! and the light model of [`crate::light`]). It exists to measure the viewer's error against.
+//!
+//! # What it computes (DESIGN.md conventions)
+//!
+//! Surfaces are Lambertian: outgoing radiance `L = ρ/π · E`. Per pixel the primary ray goes
+//! through the pixel centre ([`Camera::ray_direction`]`(px + 0.5, py + 0.5)`) to the first hit
+//! `x` (shading normal `n`, albedo `ρ`); a pixel whose ray hits nothing is black.
+//!
+//! - Direct radiance `ρ/π · E_d(x, n)`, `E_d = I max(0, cos) / d² · V` with one hard shadow ray
+//!   ([`Light::irradiance`] and [`RayCaster::occluded`]). Exact for a point light: no noise.
+//! - Indirect irradiance `E_i(x, n) = ∫_Ω L(y(ω)) cos θ dω` (bounces ≥ 1, the rendering
+//!   equation of the paper's Eq. 1 for diffuse surfaces with the direct part removed), estimated
+//!   by path tracing with cosine-weighted hemisphere sampling (pdf `cos θ / π`): every sample's
+//!   path `x → y1 → y2 → ...` contributes `Σ_k β_k E_d(y_k)` with `β_k = ρ(y1) ⋯ ρ(y_k)`
+//!   (next-event estimation toward the light at every vertex), where each vertex's one-bounce
+//!   term is combined by multiple importance sampling with a sample traced from the light
+//!   (see `Tracer::indirect_sample`; without it the bright spot that a point light close to a
+//!   wall makes dominates the noise). Russian roulette from bounce
+//!   [`ReferenceOptions::rr_start`] on, survival probability `q = max(β)` (capped at 1) and
+//!   `β /= q` on survival, keeps the estimator unbiased; a hard cap of
+//!   [`ReferenceOptions::max_bounces`] bounds the work (the bias it leaves is the energy of the
+//!   bounces beyond the cap, below `ρmax^max_bounces` of the total for a closed scene).
+//! - Indirect radiance `ρ/π · E_i`, final radiance = direct + indirect.
+//!
+//! # Noise
+//!
+//! Each pixel is rendered twice with independent random streams, `spp / 2` paths each (halves
+//! A and B); the image is their average. For a pixel with per-half standard deviation `σ`,
+//! `Var(A − B) = 2σ²` and `Var((A + B)/2) = σ²/2`, so the noise of the average is
+//! `RMS(A − B) / 2`. [`Noise::rms`] is that, over all pixels, on Rec. 709 luminance;
+//! `reference_noise.exr` holds the signed per-pixel `(A − B) / 2` of the indirect radiance (the
+//! final image has the same noise: the direct part is exact).
+//!
+//! # Determinism
+//!
+//! Pixel `p` of half `h` draws from its own PCG32 stream seeded from `(seed, h, p)`, pixels are
+//! computed independently (rayon) and written in index order, so the images are bit-identical
+//! for any thread count.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use glam::Vec3;
+use mlt_scenes::RayCaster;
+use rayon::prelude::*;
+
+use crate::camera::Camera;
+use crate::images::{luminance, ImageError, RgbImage};
+use crate::light::Light;
+use crate::probe::Probe;
+
+/// Errors of the reference renderer.
+#[derive(Debug, thiserror::Error)]
+pub enum ReferenceError {
+    #[error("samples per pixel must be an even number >= 2 (two independent halves), got {0}")]
+    Spp(u32),
+    #[error("max_bounces must be at least 1")]
+    Bounces,
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error(transparent)]
+    Image(#[from] ImageError),
+    #[error(transparent)]
+    Format(#[from] mlt_format::FormatError),
+    #[error("the reference image is not finite at pixel ({x}, {y})")]
+    NotFinite { x: u32, y: u32 },
+}
+
+/// Options of the integrator.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ReferenceOptions {
+    /// Paths per pixel (or probe), even: `spp / 2` in each independent half.
+    pub spp: u32,
+    /// Seed of all random streams.
+    pub seed: u64,
+    /// Hard cap on the path length (bounces); see the module docs for the bias it leaves.
+    pub max_bounces: u32,
+    /// Russian roulette starts after this many bounces.
+    pub rr_start: u32,
+}
+
+impl ReferenceOptions {
+    /// `spp` paths, the given seed, at most [`DEFAULT_MAX_BOUNCES`] bounces, roulette from
+    /// bounce 3.
+    pub fn new(spp: u32, seed: u64) -> ReferenceOptions {
+        ReferenceOptions {
+            spp,
+            seed,
+            max_bounces: DEFAULT_MAX_BOUNCES,
+            rr_start: 3,
+        }
+    }
+
+    fn check(&self) -> Result<(), ReferenceError> {
+        if self.spp < 2 || self.spp & 1 == 1 {
+            return Err(ReferenceError::Spp(self.spp));
+        }
+        if self.max_bounces == 0 {
+            return Err(ReferenceError::Bounces);
+        }
+        Ok(())
+    }
+}
+
+/// Default path-length cap: with roulette the mean path length is about `1/(1-ρ)`; the cap
+/// drops less than `0.99^1024 ≈ 3e-5` of the energy even at albedo 0.99.
+pub const DEFAULT_MAX_BOUNCES: u32 = 1024;
+
+/// Noise of an image estimated from its two independent halves.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct Noise {
+    /// `sqrt(mean_p (L_A(p) − L_B(p))²)` over all pixels, `L` the Rec. 709 luminance.
+    pub half_difference_rms: f64,
+    /// The noise of the average image, `half_difference_rms / 2`.
+    pub rms: f64,
+    /// Mean luminance of the average image over all pixels.
+    pub mean: f64,
+    /// `rms / mean` (0 for a black image).
+    pub relative: f64,
+}
+
+impl Noise {
+    fn from_halves(a: &[[f32; 3]], b: &[[f32; 3]]) -> Noise {
+        let n = a.len().max(1) as f64;
+        let (mut d2, mut sum) = (0.0f64, 0.0f64);
+        for (pa, pb) in a.iter().zip(b) {
+            let (la, lb) = (luminance(*pa) as f64, luminance(*pb) as f64);
+            d2 += (la - lb) * (la - lb);
+            sum += 0.5 * (la + lb);
+        }
+        let half_difference_rms = (d2 / n).sqrt();
+        let rms = 0.5 * half_difference_rms;
+        let mean = sum / n;
+        Noise {
+            half_difference_rms,
+            rms,
+            mean,
+            relative: if mean > 0.0 { rms / mean } else { 0.0 },
+        }
+    }
+}
+
+/// The reference images (linear radiance, rows from the top) and how they were made.
+#[derive(Clone, Debug)]
+pub struct ReferenceImages {
+    /// `ρ/π E_d` at the primary hit (exact, one shadow ray).
+    pub direct: RgbImage,
+    /// `ρ/π E_i`, the average of the two halves.
+    pub indirect: RgbImage,
+    /// `direct + indirect`.
+    pub final_image: RgbImage,
+    /// Signed `(A − B) / 2` of the indirect radiance, per pixel: its RMS is the noise of
+    /// `indirect` (and of `final_image`).
+    pub noise_image: RgbImage,
+    /// Noise of `indirect` (the final image has the same absolute noise).
+    pub indirect_noise: Noise,
+    /// Noise of `final_image` (absolute noise as `indirect`'s, relative to the final mean).
+    pub final_noise: Noise,
+    pub options: ReferenceOptions,
+    /// Wall-clock seconds of the rendering.
+    pub seconds: f64,
+    /// Rayon threads used (the result does not depend on it).
+    pub threads: usize,
+    pub camera: Camera,
+    pub light: Light,
+}
+
+/// A minimal PCG32 (O'Neill 2014, XSH-RR), one stream per pixel and half.
+#[derive(Clone, Debug)]
+struct Pcg32 {
+    state: u64,
+    inc: u64,
+}
+
+fn splitmix64(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+impl Pcg32 {
+    /// The stream for `(seed, domain, index)`; distinct triples give unrelated streams.
+    fn new(seed: u64, domain: u64, index: u64) -> Pcg32 {
+        let a = splitmix64(seed ^ splitmix64(domain.wrapping_mul(0x2545_F491_4F6C_DD1D)));
+        let b = splitmix64(a ^ splitmix64(index));
+        let mut r = Pcg32 {
+            state: 0,
+            inc: (splitmix64(b ^ 0xDA94_2042_E4DD_58B5) << 1) | 1,
+        };
+        r.next_u32();
+        r.state = r.state.wrapping_add(b);
+        r.next_u32();
+        r
+    }
+
+    fn next_u32(&mut self) -> u32 {
+        let old = self.state;
+        self.state = old
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(self.inc);
+        let xorshifted = (((old >> 18) ^ old) >> 27) as u32;
+        let rot = (old >> 59) as u32;
+        xorshifted.rotate_right(rot)
+    }
+
+    /// Uniform in `[0, 1)`.
+    fn next_f32(&mut self) -> f32 {
+        (self.next_u32() >> 8) as f32 * (1.0 / 16_777_216.0)
+    }
+}
+
+/// Stream domains, so that pixels, halves and probes never share a stream.
+const DOMAIN_PIXEL: u64 = 0x5049_5845_4C00;
+const DOMAIN_PROBE: u64 = 0x5052_4F42_4500;
+
+/// `x > 0` (false for NaN).
+fn positive(x: f32) -> bool {
+    x > 0.0
+}
+
+/// An orthonormal basis around the unit vector `n` (Duff et al. 2017).
+fn onb(n: Vec3) -> (Vec3, Vec3) {
+    let sign = 1.0f32.copysign(n.z);
+    let a = -1.0 / (sign + n.z);
+    let b = n.x * n.y * a;
+    (
+        Vec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x),
+        Vec3::new(b, sign + n.y * n.y * a, -n.y),
+    )
+}
+
+/// A cosine-distributed direction about `n` (pdf `cos θ / π`).
+fn cosine_sample(n: Vec3, rng: &mut Pcg32) -> Vec3 {
+    let (u1, u2) = (rng.next_f32(), rng.next_f32());
+    let r = u1.sqrt();
+    let phi = std::f32::consts::TAU * u2;
+    let (t, b) = onb(n);
+    let z = (1.0 - u1).max(0.0).sqrt();
+    (t * (r * phi.cos()) + b * (r * phi.sin()) + n * z).normalize()
+}
+
+/// The integrator's fixed state.
+struct Tracer<'a> {
+    caster: &'a dyn RayCaster,
+    light: &'a Light,
+    eps: f32,
+    opts: ReferenceOptions,
+}
+
+impl Tracer<'_> {
+    /// Direct irradiance at a surface point with shading normal `ns`, leaving on the side of
+    /// the (ray-facing) geometric normal `ng`: the light model times one shadow ray.
+    fn direct(&self, x: Vec3, ns: Vec3, ng: Vec3) -> [f32; 3] {
+        if (self.light.position - x).dot(ng) <= 0.0 {
+            return [0.0; 3];
+        }
+        let e = self.light.irradiance(x, ns);
+        if e == [0.0; 3] || self.caster.occluded(x + ng * self.eps, self.light.position) {
+            return [0.0; 3];
+        }
+        e
+    }
+
+    /// Area-measure density with which a ray from the light, uniform over the sphere of
+    /// directions, first hits the surface point `y` (geometric normal `ng`, lit side).
+    fn light_pdf(&self, y: Vec3, ng: Vec3) -> f32 {
+        let d = self.light.position - y;
+        let d2 = d.length_squared();
+        if !positive(d2) {
+            return 0.0;
+        }
+        let cos = (ng.dot(d) / d2.sqrt()).max(0.0);
+        cos / (4.0 * std::f32::consts::PI * d2)
+    }
+
+    /// One path's estimate of the indirect irradiance `E_i(x, ns)` (module docs).
+    ///
+    /// At every vertex `p` of the path (from `x` on) the one-bounce term
+    /// `T(p) = ∫ ρ(y)/π E_d(y) cos θ_p dω` is estimated with multiple importance sampling
+    /// (Veach 1997, balance heuristic) of two samples `y`: the cosine-sampled next vertex
+    /// (density `p_G = cos θ_p/π · cos θ_y/|p-y|²` in area measure) and the first hit of a
+    /// ray leaving the light uniformly (`p_L = cos θ_y,l / (4π |y-l|²)`), each contributing
+    /// `f(y) / (p_G(y) + p_L(y))`. The light sample catches the bright spots a point light makes
+    /// on nearby surfaces (a light just below a ceiling), which cosine sampling finds too
+    /// rarely; the cosine sample covers `y` close to `p` (corners). The path then continues
+    /// from the cosine sample with throughput `β *= ρ(y)`, so
+    /// `E_i(x) = Σ_k β_k T(y_k)` with `y_0 = x`, `β_0 = 1`.
+    fn indirect_sample(&self, x: Vec3, ns: Vec3, ng: Vec3, rng: &mut Pcg32) -> [f32; 3] {
+        let mut acc = [0.0f32; 3];
+        let mut beta = [1.0f32; 3];
+        let (mut p, mut ns, mut ng) = (x, ns, ng);
+        let inv_pi = std::f32::consts::FRAC_1_PI;
+        for bounce in 1..=self.opts.max_bounces {
+            // Light-sampled one-bounce term.
+            let t = self.light_sample(p, ns, ng, rng);
+            for c in 0..3 {
+                acc[c] += beta[c] * t[c];
+            }
+            // Cosine-sampled next vertex: its share of the one-bounce term, then continue.
+            let dir = cosine_sample(ns, rng);
+            let cos_p = dir.dot(ns);
+            if dir.dot(ng) <= 0.0 || !positive(cos_p) {
+                // Below the geometric surface (shading normal leaning away): no light.
+                break;
+            }
+            let Some(hit) = self
+                .caster
+                .intersect(p + ng * self.eps, dir, 0.0, f32::INFINITY)
+            else {
+                break;
+            };
+            for (b, r) in beta.iter_mut().zip(hit.albedo) {
+                *b *= r;
+            }
+            let ed = self.direct(hit.position, hit.shading_normal, hit.geometric_normal);
+            if ed != [0.0; 3] {
+                let d2 = (hit.position - (p + ng * self.eps)).length_squared();
+                let cos_y = hit.geometric_normal.dot(-dir).max(0.0);
+                let p_g = cos_p * inv_pi * cos_y / d2;
+                let p_l = self.light_pdf(hit.position, hit.geometric_normal);
+                let w = if p_g + p_l > 0.0 && p_g.is_finite() {
+                    p_g / (p_g + p_l)
+                } else {
+                    1.0
+                };
+                for c in 0..3 {
+                    acc[c] += beta[c] * ed[c] * w;
+                }
+            }
+            if bounce >= self.opts.rr_start {
+                let q = beta[0].max(beta[1]).max(beta[2]).min(1.0);
+                if q.is_nan() || q <= 0.0 || rng.next_f32() >= q {
+                    break;
+                }
+                for b in &mut beta {
+                    *b /= q;
+                }
+            }
+            p = hit.position;
+            ns = hit.shading_normal;
+            ng = hit.geometric_normal;
+        }
+        acc
+    }
+
+    /// The light-sampled half of the one-bounce term at `p` (see [`Self::indirect_sample`]):
+    /// `f(y) / (p_G(y) + p_L(y))` for `y` the first hit of a uniformly random ray from the
+    /// light, with `f(y) = ρ(y)/π E_d(y) cos θ_p cos θ_y / |p-y|² V(p, y)`.
+    fn light_sample(&self, p: Vec3, ns: Vec3, ng: Vec3, rng: &mut Pcg32) -> [f32; 3] {
+        let (u1, u2) = (rng.next_f32(), rng.next_f32());
+        let z = 1.0 - 2.0 * u1;
+        let r = (1.0 - z * z).max(0.0).sqrt();
+        let phi = std::f32::consts::TAU * u2;
+        let w = Vec3::new(r * phi.cos(), r * phi.sin(), z);
+        let Some(y) = self
+            .caster
+            .intersect(self.light.position, w, 0.0, f32::INFINITY)
+        else {
+            return [0.0; 3];
+        };
+        let po = p + ng * self.eps;
+        let yo = y.position + y.geometric_normal * self.eps;
+        let d = y.position - po;
+        let d2 = d.length_squared();
+        if !positive(d2) {
+            return [0.0; 3];
+        }
+        let dir = d / d2.sqrt();
+        let cos_p = ns.dot(dir);
+        let cos_y = y.geometric_normal.dot(-dir);
+        if !(positive(cos_p) && positive(cos_y) && positive(ng.dot(dir))) {
+            return [0.0; 3];
+        }
+        let ed = self.light.irradiance(y.position, y.shading_normal);
+        if ed == [0.0; 3] || self.caster.occluded(po, yo) {
+            return [0.0; 3];
+        }
+        let inv_pi = std::f32::consts::FRAC_1_PI;
+        let g = cos_p * cos_y / d2;
+        let p_g = cos_p * inv_pi * cos_y / d2;
+        let p_l = self.light_pdf(y.position, y.geometric_normal);
+        let denom = p_g + p_l;
+        if !positive(denom) || !denom.is_finite() {
+            return [0.0; 3];
+        }
+        std::array::from_fn(|c| y.albedo[c] * inv_pi * ed[c] * g / denom)
+    }
+
+    /// The mean of `n` paths' estimates from `rng` (f64 sums).
+    fn indirect_mean(&self, x: Vec3, ns: Vec3, ng: Vec3, n: u32, rng: &mut Pcg32) -> [f32; 3] {
+        let mut sum = [0.0f64; 3];
+        for _ in 0..n {
+            let s = self.indirect_sample(x, ns, ng, rng);
+            for c in 0..3 {
+                sum[c] += s[c] as f64;
+            }
+        }
+        sum.map(|v| (v / n as f64) as f32)
+    }
+}
+
+/// Renders the reference with `spp` paths per pixel and the default options; see
+/// [`render_reference_with`].
+pub fn render_reference(
+    caster: &dyn RayCaster,
+    camera: &Camera,
+    light: &Light,
+    spp: u32,
+    seed: u64,
+) -> Result<ReferenceImages, ReferenceError> {
+    render_reference_with(caster, camera, light, &ReferenceOptions::new(spp, seed))
+}
+
+/// Renders the reference images (module docs) for the camera and light.
+pub fn render_reference_with(
+    caster: &dyn RayCaster,
+    camera: &Camera,
+    light: &Light,
+    opts: &ReferenceOptions,
+) -> Result<ReferenceImages, ReferenceError> {
+    opts.check()?;
+    let start = Instant::now();
+    let tracer = Tracer {
+        caster,
+        light,
+        eps: caster.ray_epsilon(),
+        opts: *opts,
+    };
+    let (w, h) = (camera.width, camera.height);
+    let half = opts.spp / 2;
+    // Per pixel: (rho / pi, direct irradiance, indirect irradiance of halves A and B).
+    let pixels: Vec<[[f32; 3]; 4]> = (0..w as u64 * h as u64)
+        .into_par_iter()
+        .map(|idx| {
+            let (px, py) = ((idx % w as u64) as f32, (idx / w as u64) as f32);
+            let dir = camera.ray_direction(px + 0.5, py + 0.5);
+            let Some(hit) = caster.intersect(camera.position, dir, 0.0, f32::INFINITY) else {
+                return [[0.0; 3]; 4];
+            };
+            let (x, ns, ng) = (hit.position, hit.shading_normal, hit.geometric_normal);
+            let brdf = hit.albedo.map(|r| r * std::f32::consts::FRAC_1_PI);
+            let ed = tracer.direct(x, ns, ng);
+            let mut ra = Pcg32::new(opts.seed, DOMAIN_PIXEL, 2 * idx);
+            let mut rb = Pcg32::new(opts.seed, DOMAIN_PIXEL, 2 * idx + 1);
+            let ea = tracer.indirect_mean(x, ns, ng, half, &mut ra);
+            let eb = tracer.indirect_mean(x, ns, ng, half, &mut rb);
+            [brdf, ed, ea, eb]
+        })
+        .collect();
+    let mut direct = RgbImage::new(w, h);
+    let mut indirect = RgbImage::new(w, h);
+    let mut final_image = RgbImage::new(w, h);
+    let mut noise_image = RgbImage::new(w, h);
+    let mut half_a = Vec::with_capacity(pixels.len());
+    let mut half_b = Vec::with_capacity(pixels.len());
+    let mut final_a = Vec::with_capacity(pixels.len());
+    let mut final_b = Vec::with_capacity(pixels.len());
+    for (k, [brdf, ed, ea, eb]) in pixels.into_iter().enumerate() {
+        let d: [f32; 3] = std::array::from_fn(|c| brdf[c] * ed[c]);
+        let a: [f32; 3] = std::array::from_fn(|c| brdf[c] * ea[c]);
+        let b: [f32; 3] = std::array::from_fn(|c| brdf[c] * eb[c]);
+        let avg: [f32; 3] = std::array::from_fn(|c| 0.5 * (a[c] + b[c]));
+        let fin: [f32; 3] = std::array::from_fn(|c| d[c] + avg[c]);
+        if !(d.iter().chain(&avg).all(|v| v.is_finite())) {
+            return Err(ReferenceError::NotFinite {
+                x: (k as u64 % w as u64) as u32,
+                y: (k as u64 / w as u64) as u32,
+            });
+        }
+        direct.pixels[k] = d;
+        indirect.pixels[k] = avg;
+        final_image.pixels[k] = fin;
+        noise_image.pixels[k] = std::array::from_fn(|c| 0.5 * (a[c] - b[c]));
+        half_a.push(a);
+        half_b.push(b);
+        final_a.push(std::array::from_fn(|c| d[c] + a[c]));
+        final_b.push(std::array::from_fn(|c| d[c] + b[c]));
+    }
+    Ok(ReferenceImages {
+        direct,
+        indirect,
+        final_image,
+        noise_image,
+        indirect_noise: Noise::from_halves(&half_a, &half_b),
+        final_noise: Noise::from_halves(&final_a, &final_b),
+        options: *opts,
+        seconds: start.elapsed().as_secs_f64(),
+        threads: rayon::current_num_threads(),
+        camera: *camera,
+        light: *light,
+    })
+}
+
+/// File names written by [`write_reference`] in its directory.
+pub const REFERENCE_FILES: [&str; 6] = [
+    "reference_direct.exr",
+    "reference_indirect.exr",
+    "reference_final.exr",
+    "reference_noise.exr",
+    "reference.png",
+    "reference.json",
+];
+
+/// The JSON summary written next to the images.
+pub fn reference_json(r: &ReferenceImages) -> serde_json::Value {
+    serde_json::json!({
+        "tool": concat!("mlt-view ", env!("CARGO_PKG_VERSION"), " reference"),
+        "spp": r.options.spp,
+        "spp_per_half": r.options.spp / 2,
+        "seed": r.options.seed,
+        "max_bounces": r.options.max_bounces,
+        "russian_roulette_from_bounce": r.options.rr_start,
+        "width": r.camera.width,
+        "height": r.camera.height,
+        "camera": {
+            "position": r.camera.position.to_array(),
+            "target": r.camera.target.to_array(),
+            "up": r.camera.up.to_array(),
+            "fovy_deg": r.camera.fovy_deg,
+        },
+        "light": {
+            "position": r.light.position.to_array(),
+            "intensity": r.light.intensity,
+            "cone": format!("{:?}", r.light.cone),
+        },
+        "noise_definition": "luminance; rms = RMS over pixels of (half A - half B) / 2, the noise of the average; relative = rms / mean",
+        "noise": {
+            "indirect": r.indirect_noise,
+            "final": r.final_noise,
+            "direct": {"rms": 0.0, "note": "exact: one shadow ray to the point light"},
+        },
+        "seconds": r.seconds,
+        "threads": r.threads,
+    })
+}
+
+/// Writes `reference_{direct,indirect,final,noise}.exr`, `reference.png` (the final image,
+/// tone-mapped) and `reference.json` into `dir` (created if missing).
+pub fn write_reference(dir: &Path, r: &ReferenceImages) -> Result<(), ReferenceError> {
+    std::fs::create_dir_all(dir).map_err(|source| ReferenceError::Io {
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    r.direct.write_exr(&dir.join(REFERENCE_FILES[0]))?;
+    r.indirect.write_exr(&dir.join(REFERENCE_FILES[1]))?;
+    r.final_image.write_exr(&dir.join(REFERENCE_FILES[2]))?;
+    r.noise_image.write_exr(&dir.join(REFERENCE_FILES[3]))?;
+    r.final_image.write_png(&dir.join(REFERENCE_FILES[4]))?;
+    let json = serde_json::to_string_pretty(&reference_json(r)).unwrap_or_default();
+    mlt_format::file::write_atomic(&dir.join(REFERENCE_FILES[5]), json.as_bytes())?;
+    Ok(())
+}
+
+/// The reference at one probe point (irradiance, not radiance: comparable with `view
+/// --probe`'s `direct` and `indirect` columns).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ProbeReference {
+    /// Direct irradiance, light model with one shadow ray (exact).
+    pub direct: [f32; 3],
+    /// Indirect irradiance `E_i(x, n)`, the mean of all `spp` paths (both halves).
+    pub indirect: [f32; 3],
+    /// Half A's and half B's means (`spp / 2` paths each).
+    pub halves: [[f32; 3]; 2],
+    /// Standard error of `indirect` per channel: `sqrt(s² / spp)`, `s²` the sample variance
+    /// of the `spp` path estimates.
+    pub std_error: [f32; 3],
+    /// The same for the luminance of `indirect`.
+    pub std_error_luminance: f32,
+}
+
+/// Indirect (and direct) irradiance at probe points `(x, n)` by the same path tracer; the
+/// point is offset along `n` for its rays, as `view --probe` does. Probe `k` draws from its own
+/// streams, so results do not depend on the thread count or on the other probes.
+pub fn reference_probes(
+    caster: &dyn RayCaster,
+    light: &Light,
+    probes: &[Probe],
+    opts: &ReferenceOptions,
+) -> Result<Vec<ProbeReference>, ReferenceError> {
+    opts.check()?;
+    let tracer = Tracer {
+        caster,
+        light,
+        eps: caster.ray_epsilon(),
+        opts: *opts,
+    };
+    let half = opts.spp / 2;
+    Ok(probes
+        .par_iter()
+        .enumerate()
+        .map(|(k, p)| {
+            let (x, n) = (p.position, p.normal);
+            let direct = tracer.direct(x, n, n);
+            let mut sum = [[0.0f64; 3]; 2];
+            let mut sq = [0.0f64; 3];
+            let (mut lsum, mut lsq) = (0.0f64, 0.0f64);
+            for (hh, s) in sum.iter_mut().enumerate() {
+                let mut rng = Pcg32::new(opts.seed, DOMAIN_PROBE, 2 * k as u64 + hh as u64);
+                for _ in 0..half {
+                    let v = tracer.indirect_sample(x, n, n, &mut rng);
+                    for c in 0..3 {
+                        s[c] += v[c] as f64;
+                        sq[c] += (v[c] as f64) * (v[c] as f64);
+                    }
+                    let l = luminance(v) as f64;
+                    lsum += l;
+                    lsq += l * l;
+                }
+            }
+            let n_all = opts.spp as f64;
+            let se = |s: f64, q: f64| {
+                let mean = s / n_all;
+                let var = ((q / n_all - mean * mean) * n_all / (n_all - 1.0)).max(0.0);
+                (var / n_all).sqrt() as f32
+            };
+            ProbeReference {
+                direct,
+                indirect: std::array::from_fn(|c| ((sum[0][c] + sum[1][c]) / n_all) as f32),
+                halves: sum.map(|s| s.map(|v| (v / half as f64) as f32)),
+                std_error: std::array::from_fn(|c| se(sum[0][c] + sum[1][c], sq[c])),
+                std_error_luminance: se(lsum, lsq),
+            }
+        })
+        .collect())
+}
+
+/// Header of [`probes_to_csv`]: the columns of `view --probe-out` that the reference has
+/// (`direct_*`, `indirect_*`), then the standard errors.
+pub const PROBE_CSV_HEADER: &str = "x,y,z,nx,ny,nz,direct_r,direct_g,direct_b,indirect_r,indirect_g,indirect_b,indirect_se_r,indirect_se_g,indirect_se_b,indirect_se_lum";
+
+/// The probe references as CSV (header [`PROBE_CSV_HEADER`]).
+pub fn probes_to_csv(probes: &[Probe], values: &[ProbeReference]) -> String {
+    let mut o = String::from(PROBE_CSV_HEADER);
+    o.push('\n');
+    for (p, v) in probes.iter().zip(values) {
+        let mut f: Vec<String> = Vec::with_capacity(16);
+        f.extend(p.position.to_array().iter().map(|c| c.to_string()));
+        f.extend(p.normal.to_array().iter().map(|c| c.to_string()));
+        f.extend(v.direct.iter().map(|c| c.to_string()));
+        f.extend(v.indirect.iter().map(|c| c.to_string()));
+        f.extend(v.std_error.iter().map(|c| c.to_string()));
+        f.push(v.std_error_luminance.to_string());
+        o.push_str(&f.join(","));
+        o.push('\n');
+    }
+    o
+}
+
+/// Probe points where the camera sees the scene: the primary hits of a `cols x rows` grid of
+/// pixel centres spread over the image (a subsample of what the viewer's pixels show), with
+/// the shading normal. Pixels whose ray misses give no probe.
+pub fn camera_probes(caster: &dyn RayCaster, camera: &Camera, cols: u32, rows: u32) -> Vec<Probe> {
+    let mut out = Vec::new();
+    for j in 0..rows {
+        for i in 0..cols {
+            let px = ((i as f32 + 0.5) / cols as f32 * camera.width as f32).floor();
+            let py = ((j as f32 + 0.5) / rows as f32 * camera.height as f32).floor();
+            let dir = camera.ray_direction(px + 0.5, py + 0.5);
+            if let Some(hit) = caster.intersect(camera.position, dir, 0.0, f32::INFINITY) {
+                out.push(Probe {
+                    position: hit.position,
+                    normal: hit.shading_normal,
+                });
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn streams_differ_and_are_uniform_enough() {
+        let mut a = Pcg32::new(1, DOMAIN_PIXEL, 0);
+        let mut b = Pcg32::new(1, DOMAIN_PIXEL, 1);
+        let va: Vec<u32> = (0..8).map(|_| a.next_u32()).collect();
+        let vb: Vec<u32> = (0..8).map(|_| b.next_u32()).collect();
+        assert_ne!(va, vb);
+        let mut r = Pcg32::new(7, DOMAIN_PROBE, 3);
+        let n = 100_000;
+        let mean: f64 = (0..n).map(|_| r.next_f32() as f64).sum::<f64>() / n as f64;
+        assert!((mean - 0.5).abs() < 0.005, "{mean}");
+    }
+
+    #[test]
+    fn cosine_samples_have_the_cosine_mean() {
+        // E[cos θ] under pdf cos θ / π is 2/3.
+        let n = Vec3::new(0.3, -0.8, 0.52).normalize();
+        let mut r = Pcg32::new(3, 0, 0);
+        let m = 50_000;
+        let mut s = 0.0f64;
+        for _ in 0..m {
+            let d = cosine_sample(n, &mut r);
+            assert!(d.dot(n) >= -1e-6);
+            assert!((d.length() - 1.0).abs() < 1e-5);
+            s += d.dot(n) as f64;
+        }
+        assert!((s / m as f64 - 2.0 / 3.0).abs() < 0.005, "{}", s / m as f64);
+    }
+
+    #[test]
+    fn odd_or_zero_spp_is_refused() {
+        assert!(ReferenceOptions::new(3, 0).check().is_err());
+        assert!(ReferenceOptions::new(0, 0).check().is_err());
+        assert!(ReferenceOptions::new(2, 0).check().is_ok());
+    }
+}
