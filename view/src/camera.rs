@@ -133,7 +133,15 @@ mod tests {
     use super::*;
 
     fn cam() -> Camera {
-        Camera::new(Vec3::new(0.0, 0.0, 5.0), Vec3::ZERO, Vec3::Y, 90.0, 200, 100).unwrap()
+        Camera::new(
+            Vec3::new(0.0, 0.0, 5.0),
+            Vec3::ZERO,
+            Vec3::Y,
+            90.0,
+            200,
+            100,
+        )
+        .unwrap()
     }
 
     #[test]
@@ -158,7 +166,10 @@ mod tests {
             let ndc = clip.truncate() / clip.w;
             let sx = (ndc.x + 1.0) * 0.5 * c.width as f32;
             let sy = (1.0 - ndc.y) * 0.5 * c.height as f32;
-            assert!((sx - px).abs() < 1e-3 && (sy - py).abs() < 1e-3, "{sx},{sy} vs {px},{py}");
+            assert!(
+                (sx - px).abs() < 1e-3 && (sy - py).abs() < 1e-3,
+                "{sx},{sy} vs {px},{py}"
+            );
         }
     }
 

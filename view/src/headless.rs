@@ -157,7 +157,11 @@ pub fn render(
 /// Writes DIR/direct.exr, indirect.exr, final.exr, final.png (and direct.png, indirect.png,
 /// each tone-mapped on its own) and timings.json (each file
 /// atomically). Refuses buffers with NaN or infinite values, naming the buffer.
-pub fn write_outputs(dir: &Path, buffers: &Buffers, timings: &Timings) -> Result<(), HeadlessError> {
+pub fn write_outputs(
+    dir: &Path,
+    buffers: &Buffers,
+    timings: &Timings,
+) -> Result<(), HeadlessError> {
     std::fs::create_dir_all(dir).map_err(|e| HeadlessError::Output {
         path: dir.display().to_string(),
         msg: e.to_string(),

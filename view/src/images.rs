@@ -162,7 +162,7 @@ impl ToneMap {
     /// Display luminance scale for a pixel of luminance `l` (Eq. 4: `Ld = L (1 + L/Lw^2) /
     /// (1 + L)` with `L = key / log_average * l`).
     pub fn scale(&self, l: f32) -> f32 {
-        if !(l > 0.0) || !l.is_finite() {
+        if l.is_nan() || l <= 0.0 || !l.is_finite() {
             return 0.0;
         }
         let k = self.key / self.log_average.max(f32::MIN_POSITIVE);
@@ -197,7 +197,7 @@ pub fn reinhard(img: &RgbImage) -> RgbImage {
 
 /// The sRGB transfer function.
 pub fn linear_to_srgb(v: f32) -> f32 {
-    if !(v > 0.0) {
+    if v.is_nan() || v <= 0.0 {
         0.0
     } else if v <= 0.003_130_8 {
         12.92 * v

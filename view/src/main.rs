@@ -91,6 +91,14 @@ struct Cli {
     /// (window-MODE.png in --screenshot-dir) and close.
     #[arg(long)]
     exit_after_frames: Option<u32>,
+    /// With --headless: also render the brute-force path-traced reference with SPP paths per
+    /// pixel (even; two independent halves state its noise) into DIR/reference_*.exr,
+    /// reference.png and reference.json, for `compare`.
+    #[arg(long, requires = "headless")]
+    reference: Option<u32>,
+    /// Seed of the reference's random streams.
+    #[arg(long, default_value_t = 1)]
+    reference_seed: u64,
     /// Where the window saves screenshots (P key).
     #[arg(long, default_value = ".")]
     screenshot_dir: PathBuf,
@@ -219,6 +227,26 @@ fn main() -> Result<()> {
         )
         .with_context(|| format!("rendering {}", path.display()))?;
         mlt_view::headless::write_outputs(out, &buffers, &timings)?;
+        if let Some(spp) = cli.reference {
+            let start = std::time::Instant::now();
+            let r = mlt_view::reference::render_reference(
+                caster.as_ref(),
+                &camera,
+                &light,
+                spp,
+                cli.reference_seed,
+            )
+            .context("rendering the reference")?;
+            mlt_view::reference::write_reference(out, &r)
+                .with_context(|| format!("writing the reference into {}", out.display()))?;
+            eprintln!(
+                "reference: {spp} paths per pixel in {:.1} s, written to {}/reference_*.exr (compare with: compare {} {})",
+                start.elapsed().as_secs_f64(),
+                out.display(),
+                out.display(),
+                out.display()
+            );
+        }
         let c = &timings.cpu_median_ms;
         let g = &timings.gpu_median_ms;
         eprintln!(

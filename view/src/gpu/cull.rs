@@ -16,15 +16,22 @@ impl Frustum {
     /// Planes of wgpu's clip volume (`-w <= x, y <= w`, `0 <= z <= w`).
     pub fn from_view_proj(m: &Mat4) -> Frustum {
         let r = [m.row(0), m.row(1), m.row(2), m.row(3)];
-        let planes = [r[3] + r[0], r[3] - r[0], r[3] + r[1], r[3] - r[1], r[2], r[3] - r[2]]
-            .map(|p| {
-                let len = p.truncate().length();
-                if len > 0.0 {
-                    p / len
-                } else {
-                    p
-                }
-            });
+        let planes = [
+            r[3] + r[0],
+            r[3] - r[0],
+            r[3] + r[1],
+            r[3] - r[1],
+            r[2],
+            r[3] - r[2],
+        ]
+        .map(|p| {
+            let len = p.truncate().length();
+            if len > 0.0 {
+                p / len
+            } else {
+                p
+            }
+        });
         Frustum { planes }
     }
 

@@ -118,7 +118,10 @@ impl GpuMesh {
                         texture: None,
                     }],
                     textures: Vec::new(),
-                    bounds: (*center - Vec3::splat(*radius), *center + Vec3::splat(*radius)),
+                    bounds: (
+                        *center - Vec3::splat(*radius),
+                        *center + Vec3::splat(*radius),
+                    ),
                 }
             }
         }
@@ -132,12 +135,21 @@ fn tessellate_sphere(center: Vec3, radius: f32, segments: u32) -> Vec<Vertex> {
     let point = |i: u32, k: u32| {
         let theta = std::f32::consts::PI * k as f32 / rings as f32;
         let phi = std::f32::consts::TAU * i as f32 / segments as f32;
-        Vec3::new(theta.sin() * phi.cos(), theta.cos(), theta.sin() * phi.sin())
+        Vec3::new(
+            theta.sin() * phi.cos(),
+            theta.cos(),
+            theta.sin() * phi.sin(),
+        )
     };
     let mut out = Vec::with_capacity((segments * rings * 6) as usize);
     for k in 0..rings {
         for i in 0..segments {
-            let quad = [point(i, k), point(i + 1, k), point(i + 1, k + 1), point(i, k + 1)];
+            let quad = [
+                point(i, k),
+                point(i + 1, k),
+                point(i + 1, k + 1),
+                point(i, k + 1),
+            ];
             for tri in [[0, 1, 2], [0, 2, 3]] {
                 let [a, b, c] = tri.map(|q| quad[q]);
                 let face = (b - a).cross(c - a);

@@ -81,7 +81,8 @@ impl ShadowFaces {
                 } else {
                     Vec3::Z
                 };
-                let view = glam::camera::rh::view::look_at_mat4(light.position, light.position + axis, up);
+                let view =
+                    glam::camera::rh::view::look_at_mat4(light.position, light.position + axis, up);
                 let proj = glam::camera::rh::proj::directx::perspective(fov, 1.0, near, far);
                 ShadowFaces {
                     view_proj: vec![proj * view],
@@ -90,11 +91,20 @@ impl ShadowFaces {
                 }
             }
             _ => {
-                let proj = glam::camera::rh::proj::directx::perspective(std::f32::consts::FRAC_PI_2, 1.0, near, far);
+                let proj = glam::camera::rh::proj::directx::perspective(
+                    std::f32::consts::FRAC_PI_2,
+                    1.0,
+                    near,
+                    far,
+                );
                 let view_proj = CUBE
                     .iter()
                     .map(|(dir, up)| {
-                        proj * glam::camera::rh::view::look_at_mat4(light.position, light.position + *dir, *up)
+                        proj * glam::camera::rh::view::look_at_mat4(
+                            light.position,
+                            light.position + *dir,
+                            *up,
+                        )
                     })
                     .collect();
                 ShadowFaces {
@@ -145,7 +155,12 @@ impl Globals {
                 for (k, m) in s.view_proj.iter().enumerate().take(6) {
                     face_vp[k] = m.to_cols_array_2d();
                 }
-                (s.view_proj.len() as f32, s.texel_per_distance, s.far, res as f32)
+                (
+                    s.view_proj.len() as f32,
+                    s.texel_per_distance,
+                    s.far,
+                    res as f32,
+                )
             }
             None => (0.0, 0.0, 1.0, 1.0),
         };
@@ -153,7 +168,12 @@ impl Globals {
         let i = light.intensity;
         Globals {
             view_proj: view_proj.to_cols_array_2d(),
-            cam_pos: [camera.position.x, camera.position.y, camera.position.z, near],
+            cam_pos: [
+                camera.position.x,
+                camera.position.y,
+                camera.position.z,
+                near,
+            ],
             cam_forward: (-back).extend(0.0).to_array(),
             cam_up: up.extend(0.0).to_array(),
             viewport: [
@@ -196,9 +216,17 @@ mod tests {
             let a = d.abs();
             // The same rule as `shadow_face` in resolve.wgsl.
             let face = if a.x >= a.y && a.x >= a.z {
-                if d.x >= 0.0 { 0 } else { 1 }
+                if d.x >= 0.0 {
+                    0
+                } else {
+                    1
+                }
             } else if a.y >= a.z {
-                if d.y >= 0.0 { 2 } else { 3 }
+                if d.y >= 0.0 {
+                    2
+                } else {
+                    3
+                }
             } else if d.z >= 0.0 {
                 4
             } else {
@@ -207,7 +235,10 @@ mod tests {
             let clip = faces.view_proj[face] * (light.position + d).extend(1.0);
             assert!(clip.w > 0.0);
             let ndc = clip.truncate() / clip.w;
-            assert!(ndc.x.abs() <= 1.0 + 1e-4 && ndc.y.abs() <= 1.0 + 1e-4, "{d} {face} {ndc}");
+            assert!(
+                ndc.x.abs() <= 1.0 + 1e-4 && ndc.y.abs() <= 1.0 + 1e-4,
+                "{d} {face} {ndc}"
+            );
         }
     }
 
