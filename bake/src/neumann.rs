@@ -8,7 +8,8 @@
 //!
 //! `X_b[i][s] = sum_j K[i][j] (n_j . X_{b-1}[j][s])`  (per colour channel),
 //!
-//! truncated below epsilon. The paper computes bounces 2 and later on the coarsest receivers
+//! truncated below epsilon, except the links from coarsest senders to coarsest receivers, which
+//! are always kept (nothing coarser represents them; see `refine`). The paper computes bounces 2 and later on the coarsest receivers
 //! only ([`BounceReceivers::Coarsest`]): `S` adds every `X_b` to T's level-0 rows. Vector
 //! irradiance turns with the surface normal, so on curved geometry the coarsest level alone
 //! reconstructs these bounces poorly (about 10 % low on a closed sphere of 24 level-0 points);
@@ -243,7 +244,11 @@ pub fn series(
                         let nrm = link_norm(&v);
                         mx = mx.max(nrm as f64);
                         sm += nrm as f64;
-                        if nrm > epsilon {
+                        // Links between coarsest receivers and coarsest senders are kept
+                        // whatever their size: no coarser level represents them (see
+                        // `refine`'s module docs), so truncating them loses light.
+                        let base = row_index < n0 && (s as usize) < n0 && nrm > 0.0;
+                        if nrm > epsilon || base {
                             row.push((s, v));
                         }
                         acc[s as usize] = [0.0; LINK_DIM];

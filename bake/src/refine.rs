@@ -9,7 +9,20 @@
 //!   sender's neighbours `k` (Appendix A: finer senders carry deviations from local averages,
 //!   so similar links to neighbouring senders cancel).
 //!
-//! When any link of a receiver was kept, its children are queued for the next level. The
+//! One deliberate departure: a link between a coarsest-level receiver and a coarsest-level sender
+//! is always kept (when non-zero), whatever its magnitude. The paper's justification for
+//! dropping small links ("the effect of this sender has been correctly accounted for by the
+//! higher levels of receiver hierarchy") holds for finer receivers, whose links are differences
+//! (Eq. 17), but the coarsest receivers have no higher level: there a dropped link is light
+//! lost. With our Eq. 16 (which includes the 1/pi of Lambertian reflection) a coarsest link is
+//! about `rho / (number of coarse senders a receiver sees)`, well under the paper's
+//! epsilon = 0.025 in a closed room of 339 coarse points, so the literal rule kept about 2 % of
+//! those links and lost over 90 % of the indirect light in a closed box (measured against the
+//! path-traced reference). The level-0 block costs at most `N_0^2` links (115k for 339 points,
+//! about 2 MB). Such forced links do not queue the receiver's children: refinement follows the
+//! paper's test alone.
+//!
+//! When any link of a receiver passed the test, its children are queued for the next level. The
 //! receivers of a level are processed in parallel; each one's result depends only on its index,
 //! the seed and the coarser levels, so T is identical for any thread count.
 
@@ -98,6 +111,9 @@ pub struct RefineStats {
 
 struct Processed {
     links: Vec<(u32, [f32; LINK_DIM])>,
+    /// Whether a link passed the paper's test (forced coarsest links do not count): the
+    /// receiver's children are refined.
+    refine: bool,
     counts: GatherCounts,
 }
 
@@ -152,7 +168,7 @@ pub fn refine(
             stats.unsupported_hits += p.counts.unsupported;
             kept += p.links.len() as u64;
             t.push_row(i, &p.links, p.counts.unsupported);
-            if !p.links.is_empty() && l + 1 < b.levels() {
+            if p.refine && l + 1 < b.levels() {
                 next.extend_from_slice(children.row(i as usize));
             }
         }
@@ -206,9 +222,14 @@ fn process(
     touched.sort_unstable();
     let eps = settings.epsilon;
     let mut links = Vec::new();
+    let mut refine = false;
     for &j in &touched {
         let v = scratch.get(j);
         if link_norm(v) <= eps {
+            // The base block of the hierarchy (module docs): kept, without refining.
+            if level == 0 && j < sender_coarsest && link_norm(v) > 0.0 {
+                links.push((j, *v));
+            }
             continue;
         }
         let keep = j < sender_coarsest
@@ -219,8 +240,13 @@ fn process(
             || neighbors.row(j as usize).is_empty();
         if keep {
             links.push((j, *v));
+            refine = true;
         }
     }
     scratch.touched = touched;
-    Processed { links, counts }
+    Processed {
+        links,
+        refine,
+        counts,
+    }
 }

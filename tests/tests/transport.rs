@@ -239,13 +239,15 @@ fn refinement_adapts_to_corners_and_contacts_not_flat_walls() {
 
 #[test]
 fn a_smaller_bounce_epsilon_keeps_the_energy_that_truncation_drops() {
+    // Two sender levels: the links from coarsest senders to coarsest receivers are never
+    // truncated (the base of the hierarchy), the finer senders' are.
     let bake = |bounce_epsilon: Option<f32>| {
         let out = bake_with(
             "builtin:cornell",
             BakeOptions {
                 receiver_levels: Some(2),
                 coarse_count: Some(60),
-                sender_levels: Some(1),
+                sender_levels: Some(2),
                 gather_rays: Some(64),
                 bounce_epsilon,
                 ..Default::default()
@@ -269,4 +271,36 @@ fn a_smaller_bounce_epsilon_keeps_the_energy_that_truncation_drops() {
     );
     assert!(kept(&fine) > 0.99 && kept(&fine) > kept(&paper));
     assert!(fine.links > paper.links);
+}
+
+#[test]
+fn links_between_the_coarsest_receivers_and_senders_are_never_truncated() {
+    // A closed box at the paper's epsilon: every coarsest-coarsest link is far below epsilon
+    // (about rho / number of coarse senders seen), yet the level-0 block must keep them all,
+    // or the indirect light is lost (the spectral radius would fall far below rho).
+    let out = bake_with(
+        "builtin:box?albedo=0.5",
+        BakeOptions {
+            receiver_levels: Some(2),
+            coarse_count: Some(60),
+            sender_levels: Some(1),
+            gather_rays: Some(64),
+            ..Default::default()
+        },
+        2,
+    );
+    let stats = out.contents.transport.unwrap().meta.stats;
+    let n0 = out.contents.basis.basis.level_range(0).len() as f64;
+    // Every coarse receiver sees all coarse senders on the other five faces at least.
+    assert!(
+        stats.t_links_per_level[0] as f64 > 0.5 * n0 * n0,
+        "{} level-0 links for {n0} coarse points",
+        stats.t_links_per_level[0]
+    );
+    // The truncated operator still reflects rho = 0.5 of the light (closed box).
+    assert!(
+        (stats.spectral_radius - 0.5).abs() < 0.02,
+        "spectral radius {}",
+        stats.spectral_radius
+    );
 }
