@@ -43,6 +43,8 @@ pub struct Timings {
     pub median_senders_used: f64,
     pub adapter: AdapterReport,
     pub accumulation_format: String,
+    /// The relighter's one-time set-up (precomputed operators), when it reports one.
+    pub load: Option<crate::relight::LoadStats>,
 }
 
 #[derive(Clone, Debug, Default, Serialize)]
@@ -150,6 +152,7 @@ pub fn render(
         median_senders_used: median(senders),
         adapter: gpu.report.clone(),
         accumulation_format: format!("{:?}", renderer.accumulation_format()),
+        load: None,
     };
     Ok((buffers, timings))
 }

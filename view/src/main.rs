@@ -226,6 +226,8 @@ fn main() -> Result<()> {
             path_radius,
         )
         .with_context(|| format!("rendering {}", path.display()))?;
+        let mut timings = timings;
+        timings.load = Some(*relighter.load_stats());
         mlt_view::headless::write_outputs(out, &buffers, &timings)?;
         if let Some(spp) = cli.reference {
             let start = std::time::Instant::now();
@@ -262,6 +264,12 @@ fn main() -> Result<()> {
             timings.frames, c.direct, c.project, c.transport, c.flatten, c.total, g.total,
             timings.splatted_points, timings.basis_points
         );
+        let l = relighter.load_stats();
+        eprintln!(
+            "set-up once per file: {:.0} ms building the relighting operators ({:.1} MB)",
+            l.build_ms,
+            (l.flatten_bytes + l.pull_push_bytes + l.links_bytes) as f64 / 1e6
+        );
         return Ok(());
     }
 
@@ -287,6 +295,7 @@ fn main() -> Result<()> {
             "threads": rayon::current_num_threads(),
             "median_ms": {"direct": d, "project": p, "transport": s, "flatten": fl, "total": d + p + s + fl},
             "median_senders_used": median(senders),
+            "load": relighter.load_stats(),
             "gpu": "not used: CPU relighting only (add --headless --out DIR to render)",
         });
         eprintln!(

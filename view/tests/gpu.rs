@@ -257,8 +257,8 @@ fn cornell_ceiling_is_lit_only_indirectly_and_walls_bleed_colour() {
         } else {
             continue;
         };
-        for c in 0..3 {
-            acc[c] += b.indirect.pixels[k][c];
+        for (a, v) in acc.iter_mut().zip(b.indirect.pixels[k]) {
+            *a += v;
         }
     }
     let ratio = |v: [f32; 3]| v[0] / v[1];

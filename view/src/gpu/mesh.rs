@@ -73,7 +73,7 @@ impl GpuMesh {
                     };
                     // A vertex without a normal makes the whole triangle use its face normal,
                     // as the ray caster's shading normal does.
-                    let flat = normals.iter().any(|n| *n == Vec3::ZERO);
+                    let flat = normals.contains(&Vec3::ZERO);
                     for (k, &i) in tri.iter().enumerate() {
                         let uv = if m.uvs.is_empty() {
                             Vec2::ZERO
