@@ -41,6 +41,16 @@ pub struct FlattenOp {
     values: Vec<f32>,
 }
 
+/// Borrowed arrays of a [`FlattenOp`] (see [`FlattenOp::parts`]).
+#[derive(Clone, Copy, Debug)]
+pub struct FlattenOpParts<'a> {
+    pub cols: &'a [u32],
+    pub order: &'a [u32],
+    pub offsets: &'a [u32],
+    pub slots: &'a [u32],
+    pub values: &'a [f32],
+}
+
 /// Buffers a product reuses from frame to frame.
 #[derive(Clone, Debug, Default)]
 pub struct FlattenScratch {
@@ -186,6 +196,19 @@ impl FlattenOp {
     /// Number of stored entries `B^l_k(p_j)`.
     pub fn entries(&self) -> usize {
         self.values.len()
+    }
+
+    /// The operator's arrays, for evaluating it elsewhere (the viewer's GPU compute pass):
+    /// storage position `pos` computes flat point `order[pos]` as the sum over
+    /// `e in offsets[pos]..offsets[pos + 1]` of `values[e] * alpha[cols[slots[e]]]`.
+    pub fn parts(&self) -> FlattenOpParts<'_> {
+        FlattenOpParts {
+            cols: &self.cols,
+            order: &self.order,
+            offsets: &self.offsets,
+            slots: &self.slots,
+            values: &self.values,
+        }
     }
 
     /// Heap bytes held.

@@ -58,6 +58,8 @@ pub struct CpuMedians {
 
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct GpuMedians {
+    /// The flattening compute pass (0 when flattening runs on the CPU).
+    pub flatten: f64,
     pub cull: f64,
     pub gbuffer: f64,
     pub shadow: f64,
@@ -82,6 +84,37 @@ pub fn light_on_path(light: &Light, radius: f32, f: u32, n: u32) -> Light {
     let mut l = *light;
     l.position = light.position + Vec3::new(radius * a.cos(), 0.0, radius * a.sin());
     l
+}
+
+/// Hands a relit frame to the renderer: the hierarchical coefficients when it flattens on the
+/// GPU, else the flat ones. Returns the GPU flattening time (0 on the CPU path).
+pub fn upload(
+    gpu: &Gpu,
+    renderer: &Renderer,
+    frame: &crate::relight::Frame,
+    timed: bool,
+) -> Result<f64, GpuError> {
+    if renderer.flattens_on_gpu() && frame.flat.is_empty() {
+        renderer.set_hierarchical_coefficients(gpu, &frame.i, timed)
+    } else {
+        renderer.set_coefficients(gpu, &frame.flat);
+        Ok(0.0)
+    }
+}
+
+/// Moves flattening to the GPU when the relighter has the precomputed operator: returns the
+/// operator's bytes on the GPU, or `None` (flattening stays on the CPU).
+pub fn flatten_on_gpu(
+    gpu: &Gpu,
+    renderer: &mut Renderer,
+    relighter: &mut dyn Relight,
+) -> Result<Option<u64>, GpuError> {
+    let Some(op) = relighter.flatten_operator() else {
+        return Ok(None);
+    };
+    let bytes = renderer.enable_gpu_flatten(gpu, op)?;
+    relighter.set_flatten_on_cpu(false);
+    Ok(Some(bytes))
 }
 
 /// Renders `frames` frames (the light moving on [`light_on_path`] when more than one), then
@@ -111,14 +144,16 @@ pub fn render(
         let frame = relighter.relight(&l);
         cpu.push(frame.times);
         senders.push(frame.senders_used as f64);
-        renderer.set_coefficients(gpu, &frame.flat);
+        let flatten_ms = upload(gpu, renderer, frame, true)?;
         // Every frame is a full frame: the camera is redrawn too, as when a window resizes.
         renderer.invalidate();
-        gpu_times.push(renderer.render(gpu, ib, camera, &l, true)?);
+        let mut t = renderer.render(gpu, ib, camera, &l, true)?;
+        t.flatten_ms = flatten_ms;
+        gpu_times.push(t);
     }
     if moving {
         let frame = relighter.relight(light);
-        renderer.set_coefficients(gpu, &frame.flat);
+        upload(gpu, renderer, frame, false)?;
         renderer.render(gpu, ib, camera, light, false)?;
     }
     let buffers = renderer.read_buffers(gpu)?;
@@ -132,12 +167,15 @@ pub fn render(
     };
     let g = |f: &dyn Fn(&RenderTimes) -> f64| median(gpu_times.iter().map(f).collect());
     let gpu_median_ms = GpuMedians {
+        flatten: g(&|t| t.flatten_ms),
         cull: g(&|t| t.cull_ms),
         gbuffer: g(&|t| t.gbuffer_ms),
         shadow: g(&|t| t.shadow_ms),
         splat: g(&|t| t.splat_ms),
         resolve: g(&|t| t.resolve_ms),
-        total: g(&|t| t.cull_ms + t.gbuffer_ms + t.shadow_ms + t.splat_ms + t.resolve_ms),
+        total: g(&|t| {
+            t.flatten_ms + t.cull_ms + t.gbuffer_ms + t.shadow_ms + t.splat_ms + t.resolve_ms
+        }),
     };
     let timings = Timings {
         frames,

@@ -72,7 +72,8 @@ pub struct Frame {
     /// Receiver coefficients `i` of indirect vector irradiance (9 per point).
     pub i: Vec<f32>,
     /// Flat coefficients (9 per point, all points of all levels), as
-    /// [`mlt_format::flatten::flatten`] of `i` computes them up to rounding.
+    /// [`mlt_format::flatten::flatten`] of `i` computes them up to rounding; empty when
+    /// flattening is left to the GPU ([`CpuRelighter::flatten_on_cpu`]).
     pub flat: Vec<f32>,
     pub times: StageTimes,
     /// Senders whose links were applied.
@@ -85,6 +86,15 @@ pub struct Frame {
 pub trait Relight {
     /// The lighting for `light`; recomputed only when the light changed.
     fn relight(&mut self, light: &Light) -> &Frame;
+
+    /// The precomputed flattening operator, for a renderer that flattens on the GPU.
+    fn flatten_operator(&self) -> Option<&FlattenOp> {
+        None
+    }
+
+    /// Whether step 4 (flattening) runs here; off when the renderer does it on the GPU from
+    /// `Frame::i`. Implementations without an operator ignore it.
+    fn set_flatten_on_cpu(&mut self, _on: bool) {}
 }
 
 /// The CPU implementation.
@@ -105,6 +115,10 @@ pub struct CpuRelighter<'a> {
     /// Senders whose largest direct channel is at most this fraction of the frame's largest
     /// are skipped in `i = S e`.
     pub skip_fraction: f32,
+    /// When false and the precomputed operator exists, step 4 is left to the caller (the
+    /// renderer's GPU compute pass applies [`CpuRelighter::flatten_op`] to `Frame::i`), and
+    /// `Frame::flat` is empty.
+    pub flatten_on_cpu: bool,
     frame: Frame,
     last: Option<Light>,
 }
@@ -166,9 +180,15 @@ impl<'a> CpuRelighter<'a> {
             flatten_scratch: FlattenScratch::default(),
             load,
             skip_fraction: 1e-4,
+            flatten_on_cpu: true,
             frame: Frame::default(),
             last: None,
         }
+    }
+
+    /// The precomputed flattening operator (absent only when too large for 32-bit offsets).
+    pub fn flatten_op(&self) -> Option<&FlattenOp> {
+        self.flatten_op.as_ref()
     }
 
     /// What building the operators cost.
@@ -225,6 +245,16 @@ impl<'a> CpuRelighter<'a> {
 }
 
 impl Relight for CpuRelighter<'_> {
+    fn flatten_operator(&self) -> Option<&FlattenOp> {
+        self.flatten_op.as_ref()
+    }
+
+    fn set_flatten_on_cpu(&mut self, on: bool) {
+        self.flatten_on_cpu = on;
+        // The next frame recomputes (its flat coefficients are wanted, or no longer).
+        self.last = None;
+    }
+
     fn relight(&mut self, light: &Light) -> &Frame {
         if self.last.as_ref() == Some(light) {
             self.frame.reused = true;
@@ -262,6 +292,7 @@ impl Relight for CpuRelighter<'_> {
 
         let t = Instant::now();
         match &self.flatten_op {
+            Some(_) if !self.flatten_on_cpu => flat.clear(),
             Some(op) => op.apply(&i, LINK_DIM, &mut flat, &mut self.flatten_scratch),
             None => flat = flatten(self.ib, &i, LINK_DIM),
         }

@@ -39,6 +39,8 @@ pub struct WindowSetup<'a> {
     pub light: Light,
     pub bounds: (Vec3, Vec3),
     pub shadow_res: u32,
+    /// Flatten in a GPU compute pass (when the relighter has the operator).
+    pub gpu_flatten: bool,
     /// For scripts and tests: after this many frames, save a screenshot of every view mode
     /// (`window-MODE.png` in `screenshot_dir`) and close.
     pub exit_after_frames: Option<u32>,
@@ -157,7 +159,10 @@ impl App<'_> {
         };
         surface.configure(&gpu.device, &config);
         let mesh = GpuMesh::from_scene(self.setup.scene);
-        let renderer = Renderer::new(&gpu, &mesh, &self.setup.ib.basis, self.setup.shadow_res)?;
+        let mut renderer = Renderer::new(&gpu, &mesh, &self.setup.ib.basis, self.setup.shadow_res)?;
+        if self.setup.gpu_flatten {
+            crate::headless::flatten_on_gpu(&gpu, &mut renderer, &mut *self.setup.relighter)?;
+        }
         let mut camera = cam;
         camera.width = config.width;
         camera.height = config.height;
@@ -208,10 +213,14 @@ impl App<'_> {
 
         let frame = self.setup.relighter.relight(&s.light);
         if !frame.reused {
-            s.renderer.set_coefficients(&s.gpu, &frame.flat);
+            crate::headless::upload(&s.gpu, &s.renderer, frame, false)?;
             s.renderer.invalidate();
             s.stage = frame.times;
-            s.flat_max = max_irradiance(&frame.flat);
+            s.flat_max = max_irradiance(if frame.flat.is_empty() {
+                &frame.i
+            } else {
+                &frame.flat
+            });
             s.tone_dirty = true;
         }
         let times = s

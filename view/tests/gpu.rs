@@ -502,3 +502,42 @@ fn the_conference_room_renders_without_nan_or_inf() {
         "{covered} covered, {lit} lit"
     );
 }
+
+#[test]
+fn gpu_flattening_equals_the_cpu_operator() {
+    let d = temp("gpuflatten");
+    let f = d.join("cornell.mlt");
+    bake_to(&f, "builtin:cornell", cornell_options());
+    let file = BakedFile::open(&f).unwrap();
+    let ib = file.basis().unwrap();
+    let lb = file.links_bytes().unwrap().unwrap();
+    let links = file.access_links(&lb).unwrap();
+    let scene = mlt_scenes::load_scene("builtin:cornell").unwrap();
+    let caster = scene.build_caster();
+    let light = Light::from_info(&file.meta().unwrap().light).unwrap();
+    let mut relighter = CpuRelighter::new(&ib, links, caster.as_ref(), 3, 4);
+    let frame = relighter.relight(&light).clone();
+    assert!(!frame.flat.is_empty());
+    let gpu = gpu();
+    let mut renderer = Renderer::new(&gpu, &GpuMesh::from_scene(&scene), &ib.basis, 64).unwrap();
+    let op = relighter.flatten_operator().unwrap();
+    renderer.enable_gpu_flatten(&gpu, op).unwrap();
+    renderer
+        .set_hierarchical_coefficients(&gpu, &frame.i, true)
+        .unwrap();
+    let on_gpu = renderer.read_coefficients(&gpu).unwrap();
+    assert_eq!(on_gpu.len(), frame.flat.len());
+    let scale = frame.flat.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    assert!(scale > 0.0);
+    for (k, (g, c)) in on_gpu.iter().zip(&frame.flat).enumerate() {
+        assert!(
+            (g - c).abs() <= 1e-5 * scale,
+            "entry {k}: GPU {g} vs CPU {c}"
+        );
+    }
+    // With flattening left to the GPU, the relighter skips its fourth stage.
+    relighter.set_flatten_on_cpu(false);
+    let frame2 = relighter.relight(&light);
+    assert!(frame2.flat.is_empty() && frame2.i == frame.i);
+    let _ = std::fs::remove_dir_all(&d);
+}

@@ -16,6 +16,7 @@ use std::time::Instant;
 use bytemuck::{Pod, Zeroable};
 use glam::{Mat4, Vec3};
 use mlt_format::flatten::flat_radius;
+use mlt_format::flatten_op::FlattenOp;
 use mlt_format::links::LINK_DIM;
 use mlt_format::{Basis, IndexedBasis};
 use serde::Serialize;
@@ -23,6 +24,7 @@ use wgpu::util::DeviceExt;
 
 use super::context::{Gpu, GpuError};
 use super::cull::{visible_points, Frustum};
+use super::flatten::GpuFlatten;
 use super::mesh::{GpuMesh, Vertex};
 use super::readback::read_rgba32f;
 use super::uniforms::{FaceUniform, Globals, ShadowFaces};
@@ -85,6 +87,8 @@ impl ViewMode {
 /// on its own when timing was asked for), and the culling on the CPU.
 #[derive(Clone, Copy, Debug, Default, Serialize)]
 pub struct RenderTimes {
+    /// The flattening compute pass, when the renderer flattens (set by the caller).
+    pub flatten_ms: f64,
     pub cull_ms: f64,
     pub gbuffer_ms: f64,
     pub shadow_ms: f64,
@@ -196,6 +200,7 @@ pub struct Renderer {
     face_bgs: Vec<wgpu::BindGroup>,
     shadow_faces: Option<ShadowFaces>,
     shadow_sampler: wgpu::Sampler,
+    gpu_flatten: Option<GpuFlatten>,
     acc_format: wgpu::TextureFormat,
     targets: Option<Targets>,
     last_camera: Option<Camera>,
@@ -657,7 +662,9 @@ impl Renderer {
         let coeff_buffer = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("flat coefficients"),
             size: (n.max(1) * LINK_DIM * 4) as u64,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_DST
+                | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
         });
         let visible_buffer = device.create_buffer(&wgpu::BufferDescriptor {
@@ -870,6 +877,7 @@ impl Renderer {
             face_bgs,
             shadow_faces: None,
             shadow_sampler,
+            gpu_flatten: None,
             acc_format,
             targets: None,
             last_camera: None,
@@ -895,6 +903,60 @@ impl Renderer {
             gpu.queue
                 .write_buffer(&self.coeff_buffer, 0, bytemuck::cast_slice(&flat[..n]));
         }
+    }
+
+    /// Moves flattening to the GPU: uploads the precomputed operator once; afterwards
+    /// [`Renderer::set_hierarchical_coefficients`] replaces [`Renderer::set_coefficients`].
+    /// Returns the bytes uploaded.
+    pub fn enable_gpu_flatten(&mut self, gpu: &Gpu, op: &FlattenOp) -> Result<u64, GpuError> {
+        if op.points() != self.points.len() {
+            return Err(GpuError::Validation(format!(
+                "flattening operator for {} points, basis of {}",
+                op.points(),
+                self.points.len()
+            )));
+        }
+        let f = GpuFlatten::new(gpu, op, &self.coeff_buffer)?;
+        let bytes = f.bytes;
+        self.gpu_flatten = Some(f);
+        Ok(bytes)
+    }
+
+    /// True after [`Renderer::enable_gpu_flatten`].
+    pub fn flattens_on_gpu(&self) -> bool {
+        self.gpu_flatten.is_some()
+    }
+
+    /// Flattens the hierarchical coefficients `i` (`LINK_DIM` per point) on the GPU into the
+    /// splatted coefficients. With `timed`, waits and returns the wall time in milliseconds.
+    pub fn set_hierarchical_coefficients(
+        &self,
+        gpu: &Gpu,
+        i: &[f32],
+        timed: bool,
+    ) -> Result<f64, GpuError> {
+        let Some(f) = &self.gpu_flatten else {
+            return Err(GpuError::Validation(
+                "GPU flattening is not enabled (enable_gpu_flatten)".into(),
+            ));
+        };
+        let start = Instant::now();
+        let mut enc = gpu
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("flatten"),
+            });
+        f.encode(gpu, i, &mut enc);
+        gpu.queue.submit([enc.finish()]);
+        if timed {
+            gpu.wait()?;
+        }
+        Ok(start.elapsed().as_secs_f64() * 1e3)
+    }
+
+    /// Reads back the flat coefficients the splatting pass uses (for tests).
+    pub fn read_coefficients(&self, gpu: &Gpu) -> Result<Vec<f32>, GpuError> {
+        super::readback::read_buffer_f32(gpu, &self.coeff_buffer, self.points.len() * LINK_DIM)
     }
 
     fn ensure_targets(&mut self, gpu: &Gpu, w: u32, h: u32) {
