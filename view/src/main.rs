@@ -71,9 +71,11 @@ struct Cli {
     /// Shadow rays per sender point for the direct light at the senders.
     #[arg(long, default_value_t = 8)]
     shadow_rays: u32,
-    /// Flatten on the CPU (the fourth relighting stage) instead of in a GPU compute pass.
-    #[arg(long)]
-    cpu_flatten: bool,
+    /// Where the fourth relighting stage, flattening, runs: `gpu` (a compute pass), `cpu`, or
+    /// `auto`: the GPU unless the adapter is a software rasteriser (on llvmpipe the compute
+    /// pass costs more of the same CPU than the CPU path).
+    #[arg(long, value_enum, default_value_t = FlattenOn::Auto)]
+    flatten: FlattenOn,
     /// Shadow-map resolution of the rendered direct light.
     #[arg(long, default_value_t = 1024)]
     shadow_res: u32,
@@ -105,6 +107,24 @@ struct Cli {
     /// Where the window saves screenshots (P key).
     #[arg(long, default_value = ".")]
     screenshot_dir: PathBuf,
+}
+
+/// Where flattening runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum FlattenOn {
+    Auto,
+    Cpu,
+    Gpu,
+}
+
+impl FlattenOn {
+    fn on_gpu(self, gpu: &Gpu) -> bool {
+        match self {
+            FlattenOn::Gpu => true,
+            FlattenOn::Cpu => false,
+            FlattenOn::Auto => !gpu.is_software(),
+        }
+    }
 }
 
 fn vec3(s: &str) -> Result<Vec3, String> {
@@ -218,7 +238,7 @@ fn main() -> Result<()> {
         let mesh = GpuMesh::from_scene(&scene);
         let mut renderer = Renderer::new(&gpu, &mesh, &ib.basis, cli.shadow_res)
             .context("setting up the renderer")?;
-        if !cli.cpu_flatten {
+        if cli.flatten.on_gpu(&gpu) {
             mlt_view::headless::flatten_on_gpu(&gpu, &mut renderer, &mut relighter)
                 .context("uploading the flattening operator")?;
         }
@@ -325,7 +345,11 @@ fn main() -> Result<()> {
         light,
         bounds: (lo, hi),
         shadow_res: cli.shadow_res,
-        gpu_flatten: !cli.cpu_flatten,
+        gpu_flatten: match cli.flatten {
+            FlattenOn::Gpu => Some(true),
+            FlattenOn::Cpu => Some(false),
+            FlattenOn::Auto => None,
+        },
         exit_after_frames: cli.exit_after_frames,
         screenshot_dir: cli.screenshot_dir.clone(),
     })

@@ -39,8 +39,9 @@ pub struct WindowSetup<'a> {
     pub light: Light,
     pub bounds: (Vec3, Vec3),
     pub shadow_res: u32,
-    /// Flatten in a GPU compute pass (when the relighter has the operator).
-    pub gpu_flatten: bool,
+    /// Flatten in a GPU compute pass (when the relighter has the operator): `Some(true)`,
+    /// `Some(false)`, or `None` for "unless the adapter is a software rasteriser".
+    pub gpu_flatten: Option<bool>,
     /// For scripts and tests: after this many frames, save a screenshot of every view mode
     /// (`window-MODE.png` in `screenshot_dir`) and close.
     pub exit_after_frames: Option<u32>,
@@ -160,7 +161,7 @@ impl App<'_> {
         surface.configure(&gpu.device, &config);
         let mesh = GpuMesh::from_scene(self.setup.scene);
         let mut renderer = Renderer::new(&gpu, &mesh, &self.setup.ib.basis, self.setup.shadow_res)?;
-        if self.setup.gpu_flatten {
+        if self.setup.gpu_flatten.unwrap_or(!gpu.is_software()) {
             crate::headless::flatten_on_gpu(&gpu, &mut renderer, &mut *self.setup.relighter)?;
         }
         let mut camera = cam;

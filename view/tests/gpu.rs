@@ -308,6 +308,30 @@ fn headless_cli_writes_finite_non_black_images_and_timings() {
     assert!(t["cpu_median_ms"]["total"]
         .as_f64()
         .is_some_and(|v| v > 0.0));
+    // Flattening on the GPU gives the same image as on the CPU.
+    for flatten in ["cpu", "gpu"] {
+        let dir = d.join(flatten);
+        let r = Command::new(env!("CARGO_BIN_EXE_view"))
+            .arg(&f)
+            .args([
+                "--headless",
+                "--width",
+                "64",
+                "--height",
+                "48",
+                "--flatten",
+                flatten,
+            ])
+            .arg("--out")
+            .arg(&dir)
+            .output()
+            .unwrap();
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    }
+    let cpu = RgbImage::read_exr(&d.join("cpu/indirect.exr")).unwrap();
+    let gpu = RgbImage::read_exr(&d.join("gpu/indirect.exr")).unwrap();
+    let diff = relative_difference(&gpu, &cpu);
+    assert!(diff < 1e-4, "GPU and CPU flattening differ by {diff}");
     let _ = std::fs::remove_dir_all(&d);
 }
 

@@ -106,6 +106,11 @@ impl Gpu {
         })
     }
 
+    /// True for a software rasteriser (Mesa's llvmpipe and the like), which runs on the CPU.
+    pub fn is_software(&self) -> bool {
+        self.adapter.get_info().device_type == wgpu::DeviceType::Cpu
+    }
+
     /// Waits until the GPU has finished all submitted work.
     pub fn wait(&self) -> Result<(), GpuError> {
         self.device
