@@ -2,32 +2,31 @@
 //! basis on the same points, so that a renderer accumulates one layer instead of all levels.
 //!
 //! The flat basis is a single-level meshless basis on every point of every level ("constructed
-//! from the same points as the hierarchical basis"): each point gets the weight function of
-//! Eq. 8 with one common support radius, the finest level's ([`flat_radius`]), normalised over
-//! all of them: `B^flat_j = w_j / sum_k w_k`. The flat coefficient of point `j` is the
+//! from the same points as the hierarchical basis"): point `j` of level `l` gets the weight
+//! function of Eq. 8 with its own support radius, scaled by a level priority
+//! `FLAT_LEVEL_PRIORITY^(L-1-l)` ([`flat_level_factor`]), and the functions are normalised over
+//! all of them: `B^flat_j = f_j w_j / sum_k f_k w_k`. The flat coefficient of point `j` is the
 //! hierarchical expansion evaluated there, `c_j = F_L(p_j)` (Eq. 6).
 //!
-//! Keeping each point's own (level) radius instead would make the coarse functions, whose
-//! supports overlap as many neighbours as the fine ones, carry about as much weight as the
-//! fine functions everywhere: the displayed solution would be blurred towards the coarse
-//! levels (on a closed sphere, the vector irradiance averaged over the coarse supports comes
-//! out 4-5 % short), and the splatting would draw every coarse footprint, which is the
-//! overdraw flattening exists to remove.
+//! Why the priority: with equal weights the coarse functions, whose supports overlap as many
+//! neighbours as the fine ones, carry about as much weight as the fine functions everywhere, so
+//! the displayed solution blurs towards the coarse levels (on a closed sphere the vector
+//! irradiance averaged over the coarse supports came out 4.5 % short). With the factor each
+//! coarser level weighs 1 % of the next finer one where that one has support, and takes over
+//! only where the finer levels have none. (Giving every point the finest level's radius instead
+//! left holes, black pixels, wherever the finest level has no points: point placement runs out
+//! of candidates there.)
 
-use crate::kernel::weight;
 use crate::shepard::{IndexedBasis, Support, MAX_DIM, MIN_WEIGHT_SUM};
-use crate::Basis;
 
-/// The common support radius of the flat basis: the finest non-empty level's largest support
-/// radius (0 for an empty basis). It is never larger than any point's own radius, so the
-/// R-trees (built over the own radii) stay conservative for flat queries.
-pub fn flat_radius(basis: &Basis) -> f32 {
-    (0..basis.levels())
-        .rev()
-        .map(|l| basis.level_range(l))
-        .find(|r| !r.is_empty())
-        .map(|r| basis.radii[r].iter().fold(0.0f32, |m, &v| m.max(v)))
-        .unwrap_or(0.0)
+/// Weight of a level relative to the next finer one in the flat basis.
+pub const FLAT_LEVEL_PRIORITY: f32 = 0.01;
+
+/// The factor `FLAT_LEVEL_PRIORITY^(levels-1-level)` of a level's weight functions in the flat
+/// basis (1 on the finest level). Whether a point has support is decided on the unscaled
+/// weights (`MIN_WEIGHT_SUM`), so the factor only ranks the levels.
+pub fn flat_level_factor(level: usize, levels: usize) -> f32 {
+    FLAT_LEVEL_PRIORITY.powi(levels.saturating_sub(1 + level) as i32)
 }
 
 /// Flat coefficients `c_j = F_L(p_j)` for every point, `dim` floats each. Points are
@@ -49,7 +48,8 @@ pub fn flatten(ib: &IndexedBasis, alpha: &[f32], dim: usize) -> Vec<f32> {
 }
 
 /// Evaluates the flat expansion `sum_j c_j B^flat_j(x, n)` into `out[..dim]` (every point with
-/// the [`flat_radius`]), as the renderer's splatting does per pixel.
+/// its own radius and its level's [`flat_level_factor`]), as the renderer's splatting does per
+/// pixel.
 pub fn reconstruct_flat(
     ib: &IndexedBasis,
     flat: &[f32],
@@ -59,23 +59,20 @@ pub fn reconstruct_flat(
     out: &mut [f32],
 ) -> Support {
     assert!(dim <= MAX_DIM && out.len() >= dim);
-    let b = &ib.basis;
-    let r = flat_radius(b);
+    let levels = ib.levels();
     let mut acc = [0.0f32; MAX_DIM];
-    let mut sum = 0.0f32;
-    for tree in &ib.trees {
-        tree.for_each_candidate(x, |j| {
-            let j = j as usize;
-            let w = weight(x, n, b.positions[j], b.normals[j], r);
-            if w > 0.0 {
-                sum += w;
-                for k in 0..dim {
-                    acc[k] += w * flat[j * dim + k];
-                }
+    let (mut sum, mut raw) = (0.0f32, 0.0f32);
+    for l in 0..levels {
+        let f = flat_level_factor(l, levels);
+        raw += ib.for_each_weight(l, x, n, |j, w| {
+            let w = f * w;
+            sum += w;
+            for k in 0..dim {
+                acc[k] += w * flat[j * dim + k];
             }
         });
     }
-    if sum > MIN_WEIGHT_SUM {
+    if raw > MIN_WEIGHT_SUM && sum > 0.0 {
         for k in 0..dim {
             out[k] = acc[k] / sum;
         }
@@ -136,14 +133,30 @@ mod tests {
     }
 
     #[test]
-    fn flat_radius_is_the_finest_levels_and_bounded_by_every_points_own() {
+    fn finer_levels_dominate_the_flat_basis_where_they_have_support() {
+        assert_eq!(flat_level_factor(2, 3), 1.0);
+        assert_eq!(
+            flat_level_factor(0, 3),
+            FLAT_LEVEL_PRIORITY * FLAT_LEVEL_PRIORITY
+        );
+        assert!(flat_level_factor(0, 6) > 0.5e-10);
+        // Flat coefficients 1 on the finest level and 0 on the coarser ones: where the finest
+        // level has support, the flat expansion is within the priority of 1.
         let ib = plane_basis(3, 3);
-        let r = flat_radius(&ib.basis);
-        let finest = ib.basis.level_range(2);
-        assert!(r > 0.0);
-        assert_eq!(r, ib.basis.radii[finest.start]);
-        assert!(ib.basis.radii.iter().all(|&own| own >= r));
-        assert_eq!(flat_radius(&crate::Basis::default()), 0.0);
+        let fine = ib.basis.level_range(2);
+        let flat: Vec<f32> = (0..ib.basis.len())
+            .map(|j| if fine.contains(&j) { 1.0 } else { 0.0 })
+            .collect();
+        let mut out = [0.0];
+        for q in 0..50 {
+            let x = [0.2 + 0.012 * q as f32, 0.3 + 0.008 * q as f32, 0.0];
+            reconstruct_flat(&ib, &flat, 1, x, [0.0, 0.0, 1.0], &mut out);
+            assert!(
+                out[0] > 1.0 - 3.0 * FLAT_LEVEL_PRIORITY,
+                "{x:?}: {}",
+                out[0]
+            );
+        }
     }
 
     #[test]

@@ -108,7 +108,13 @@ fn gpu_splatting_equals_the_cpu_reconstruction_of_the_flat_expansion() {
         }
         let (x, n) = ([p[0], p[1], p[2]], g.normal[k]);
         let mut v = [0.0f32; LINK_DIM];
-        reconstruct_flat(&ib, &flat, LINK_DIM, x, n, &mut v);
+        // No holes: every covered pixel has support in the flat basis (the coarse levels fill
+        // in where the finest has no points).
+        let support = reconstruct_flat(&ib, &flat, LINK_DIM, x, n, &mut v);
+        assert_eq!(
+            support.unsupported, 0,
+            "pixel {k} at {x:?} has no flat support"
+        );
         let a = g.albedo[k];
         for c in 0..3 {
             let e = (n[0] * v[3 * c] + n[1] * v[3 * c + 1] + n[2] * v[3 * c + 2]).max(0.0);

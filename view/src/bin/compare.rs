@@ -25,6 +25,56 @@ struct Cli {
     /// Print JSON instead of text.
     #[arg(long)]
     json: bool,
+    /// Also write a PNG for people: the test's indirect image, the reference's, and their
+    /// absolute difference, side by side, all with the reference's tone mapping (Reinhard
+    /// 2002, key measured on the reference indirect image).
+    #[arg(long)]
+    side_by_side: Option<PathBuf>,
+}
+
+/// `[test | reference | |test - reference|]`, tone-mapped alike.
+fn side_by_side(
+    reference: &std::path::Path,
+    test: &std::path::Path,
+    out: &std::path::Path,
+) -> Result<()> {
+    use mlt_view::images::{linear_to_srgb, luminance, RgbImage, ToneMap};
+    let r = RgbImage::read_exr(&reference.join("reference_indirect.exr"))?;
+    let t = RgbImage::read_exr(&test.join("indirect.exr"))
+        .or_else(|_| RgbImage::read_exr(&test.join("reference_indirect.exr")))?;
+    anyhow::ensure!(
+        (r.width, r.height) == (t.width, t.height),
+        "{}: {}x{} against the reference's {}x{}",
+        test.display(),
+        t.width,
+        t.height,
+        r.width,
+        r.height
+    );
+    let tone = ToneMap::measure(&r);
+    let (w, h) = (r.width, r.height);
+    let mut img = image::RgbImage::new(3 * w, h);
+    for y in 0..h {
+        for x in 0..w {
+            let (a, b) = (t.get(x, y), r.get(x, y));
+            let d = [
+                (a[0] - b[0]).abs(),
+                (a[1] - b[1]).abs(),
+                (a[2] - b[2]).abs(),
+            ];
+            for (k, c) in [a, b, d].into_iter().enumerate() {
+                let s = tone.scale(luminance(c));
+                let px = c.map(|v| (linear_to_srgb((v * s).clamp(0.0, 1.0)) * 255.0 + 0.5) as u8);
+                img.put_pixel(k as u32 * w + x, y, image::Rgb(px));
+            }
+        }
+    }
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut bytes, image::ImageFormat::Png)
+        .with_context(|| format!("encoding {}", out.display()))?;
+    mlt_format::file::write_atomic(out, bytes.get_ref())
+        .with_context(|| format!("writing {}", out.display()))?;
+    Ok(())
 }
 
 fn main() -> Result<()> {
@@ -70,6 +120,9 @@ fn main() -> Result<()> {
         if let Some(n) = &c.reference_noise {
             println!("reference noise (reference.json): {n}");
         }
+    }
+    if let Some(out) = &cli.side_by_side {
+        side_by_side(&cli.reference, &cli.test, out)?;
     }
     Ok(())
 }

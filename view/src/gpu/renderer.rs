@@ -1,9 +1,10 @@
 //! The passes of the deferred renderer (section 4.1):
 //! 1. G-buffer: world position, shading normal and albedo (textures included) per pixel;
 //! 2. shadow maps: linear light distance, a cube for a point light, one map for a spot;
-//! 3. splatting: every flat basis function (all points, the finest level's support radius:
-//!    `mlt_format::flatten`) that survives frustum culling is drawn as a footprint bounding
-//!    its support sphere; covered pixels accumulate `w_j` (Eq. 8) and `w_j c_j`;
+//! 3. splatting: every flat basis function (all points with their own radii and their level's
+//!    priority factor: `mlt_format::flatten`) that survives frustum culling is drawn as a
+//!    footprint bounding its support sphere; covered pixels accumulate `f_j w_j` (Eq. 8),
+//!    `f_j w_j c_j` and the unscaled `w_j` (which decides whether a pixel has support);
 //! 4. resolve: `E = n . (sum w c / sum w)`, indirect radiance `albedo / pi E`, plus the
 //!    shadow-mapped direct light, written as linear direct, indirect and final radiance;
 //! 5. display: a buffer or debug view, Reinhard 2002 tone mapped, into a window or image.
@@ -15,7 +16,7 @@ use std::time::Instant;
 
 use bytemuck::{Pod, Zeroable};
 use glam::{Mat4, Vec3};
-use mlt_format::flatten::flat_radius;
+use mlt_format::flatten::flat_level_factor;
 use mlt_format::flatten_op::FlattenOp;
 use mlt_format::links::LINK_DIM;
 use mlt_format::{Basis, IndexedBasis};
@@ -124,6 +125,8 @@ pub struct GBuffer {
 struct PointGpu {
     pos_r: [f32; 4],
     normal_level: [f32; 4],
+    /// x: the level's weight factor in the flat basis (`flat_level_factor`).
+    factor: [f32; 4],
 }
 
 #[repr(C)]
@@ -165,8 +168,6 @@ struct MaterialDraw {
 /// The renderer of one baked scene.
 pub struct Renderer {
     points: Basis,
-    /// The flat basis's common support radius ([`flat_radius`]).
-    flat_radius: f32,
     levels: usize,
     bounds: (Vec3, Vec3),
     vertex_buffer: wgpu::Buffer,
@@ -638,14 +639,15 @@ impl Renderer {
 
         // Basis points, coefficients, visible list.
         let n = basis.len();
-        let r_flat = flat_radius(basis);
+        let levels = basis.levels();
         let pts: Vec<PointGpu> = (0..n)
             .map(|j| {
                 let p = basis.positions[j];
                 let nn = basis.normals[j];
                 PointGpu {
-                    pos_r: [p[0], p[1], p[2], r_flat],
+                    pos_r: [p[0], p[1], p[2], basis.radii[j]],
                     normal_level: [nn[0], nn[1], nn[2], basis.level_of(j) as f32],
+                    factor: [flat_level_factor(basis.level_of(j), levels), 0.0, 0.0, 0.0],
                 }
             })
             .collect();
@@ -843,7 +845,6 @@ impl Renderer {
         }
         Ok(Renderer {
             points: basis.clone(),
-            flat_radius: r_flat,
             levels: basis.levels(),
             bounds: mesh.bounds,
             vertex_buffer,
@@ -1081,7 +1082,7 @@ impl Renderer {
             self.culling_nodes = visible_points(
                 ib,
                 &Frustum::from_view_proj(&view_proj),
-                self.flat_radius,
+                f32::INFINITY,
                 &mut self.visible,
             );
             if !self.visible.is_empty() {
@@ -1435,7 +1436,7 @@ impl Renderer {
         let pu = PointsUniform {
             params: [
                 range.start as f32,
-                0.3,
+                0.08,
                 flat_max_luminance.max(1e-30).log10(),
                 encode_srgb,
             ],

@@ -40,7 +40,7 @@ fn fs(@builtin(position) frag: vec4<f32>) -> @location(0) vec4<f32> {
     if mode == 3 {
         let a0 = textureLoad(acc0, px, 0);
         let a2 = textureLoad(acc2, px, 0);
-        if a0.x > MIN_WEIGHT_SUM {
+        if a2.w > MIN_WEIGHT_SUM && a0.x > 0.0 {
             c = heat(a2.z / a0.x / max(d.extra.x - 1.0, 1.0));
         } else {
             c = vec3<f32>(0.0);

@@ -4,6 +4,7 @@
 struct Point {
     pos_r: vec4<f32>,
     normal_level: vec4<f32>,
+    factor: vec4<f32>,
 };
 
 struct PointsParams {
@@ -35,6 +36,7 @@ fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VsOut
     }
     let u = normalize(t);
     let v = cross(n, u);
+    // The disk scales with the level's own radius.
     let s = pp.params.y * p.pos_r.w;
     // Lifted off the surface a little so the depth test keeps it visible.
     let w = p.pos_r.xyz + n * (0.02 * p.pos_r.w) + (u * corner.x + v * corner.y) * s;

@@ -82,7 +82,7 @@ fn fs(@builtin(position) frag: vec4<f32>) -> Out {
     let a1 = textureLoad(acc1, px, 0);
     let a2 = textureLoad(acc2, px, 0);
     var e_ind = vec3<f32>(0.0);
-    if a0.x > MIN_WEIGHT_SUM {
+    if a2.w > MIN_WEIGHT_SUM && a0.x > 0.0 {
         let inv = 1.0 / a0.x;
         let r = vec3<f32>(a0.y, a0.z, a0.w) * inv;
         let gr = vec3<f32>(a1.x, a1.y, a1.z) * inv;

@@ -8,6 +8,8 @@ struct Point {
     pos_r: vec4<f32>,
     // xyz: normal; w: level.
     normal_level: vec4<f32>,
+    // x: the level's priority factor in the flat basis.
+    factor: vec4<f32>,
 };
 
 @group(0) @binding(0) var<uniform> g: Globals;
@@ -72,14 +74,15 @@ fn fs(v: VsOut) -> AccOut {
     }
     let n = textureLoad(gbuf_normal, px, 0).xyz;
     let p = points[v.index];
-    let w = basis_weight(x.xyz, n, p.pos_r.xyz, p.normal_level.xyz, p.pos_r.w);
-    if w <= 0.0 {
+    let raw = basis_weight(x.xyz, n, p.pos_r.xyz, p.normal_level.xyz, p.pos_r.w);
+    if raw <= 0.0 {
         discard;
     }
+    let w = raw * p.factor.x;
     let b = v.index * 9u;
     var out: AccOut;
     out.a0 = vec4<f32>(w, w * coeffs[b], w * coeffs[b + 1u], w * coeffs[b + 2u]);
     out.a1 = vec4<f32>(w * coeffs[b + 3u], w * coeffs[b + 4u], w * coeffs[b + 5u], w * coeffs[b + 6u]);
-    out.a2 = vec4<f32>(w * coeffs[b + 7u], w * coeffs[b + 8u], w * p.normal_level.w, 0.0);
+    out.a2 = vec4<f32>(w * coeffs[b + 7u], w * coeffs[b + 8u], w * p.normal_level.w, raw);
     return out;
 }
