@@ -56,14 +56,7 @@ pub fn read_raw(
         },
     );
     gpu.queue.submit([encoder.finish()]);
-    let (tx, rx) = std::sync::mpsc::channel();
-    buffer.map_async(wgpu::MapMode::Read, .., move |r| {
-        let _ = tx.send(r);
-    });
-    gpu.wait()?;
-    rx.recv()
-        .map_err(|e| GpuError::Readback(e.to_string()))?
-        .map_err(|e| GpuError::Readback(e.to_string()))?;
+    map_for_reading(gpu, &buffer)?;
     let mut out = Vec::with_capacity((bytes_per_row * h) as usize);
     {
         let view = buffer
@@ -98,14 +91,7 @@ pub fn read_buffer_f32(
         });
     encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, size);
     gpu.queue.submit([encoder.finish()]);
-    let (tx, rx) = std::sync::mpsc::channel();
-    staging.map_async(wgpu::MapMode::Read, .., move |r| {
-        let _ = tx.send(r);
-    });
-    gpu.wait()?;
-    rx.recv()
-        .map_err(|e| GpuError::Readback(e.to_string()))?
-        .map_err(|e| GpuError::Readback(e.to_string()))?;
+    map_for_reading(gpu, &staging)?;
     let out = {
         let view = staging
             .get_mapped_range(..)
@@ -117,4 +103,16 @@ pub fn read_buffer_f32(
     };
     staging.unmap();
     Ok(out)
+}
+
+/// Maps a `MAP_READ` buffer after the submitted work that fills it, blocking until done.
+fn map_for_reading(gpu: &Gpu, buffer: &wgpu::Buffer) -> Result<(), GpuError> {
+    let (tx, rx) = std::sync::mpsc::channel();
+    buffer.map_async(wgpu::MapMode::Read, .., move |r| {
+        let _ = tx.send(r);
+    });
+    gpu.wait()?;
+    rx.recv()
+        .map_err(|e| GpuError::Readback(e.to_string()))?
+        .map_err(|e| GpuError::Readback(e.to_string()))
 }

@@ -327,6 +327,67 @@ fn half_texels(t: &mlt_scenes::Texture) -> Vec<u8> {
     out
 }
 
+/// What differs between the renderer's pipelines.
+struct PipelineSpec<'a> {
+    label: &'a str,
+    bind_groups: &'a [&'a wgpu::BindGroupLayout],
+    module: &'a wgpu::ShaderModule,
+    vertex_buffers: &'a [Option<wgpu::VertexBufferLayout<'a>>],
+    topology: wgpu::PrimitiveTopology,
+    depth: Option<wgpu::DepthStencilState>,
+    targets: &'a [Option<wgpu::ColorTargetState>],
+}
+
+/// A render pipeline with entry points `vs` and `fs` of one module.
+fn pipeline(device: &wgpu::Device, spec: PipelineSpec<'_>) -> wgpu::RenderPipeline {
+    let groups: Vec<Option<&wgpu::BindGroupLayout>> =
+        spec.bind_groups.iter().map(|g| Some(*g)).collect();
+    let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        label: Some(spec.label),
+        bind_group_layouts: &groups,
+        immediate_size: 0,
+    });
+    device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+        label: Some(spec.label),
+        layout: Some(&layout),
+        vertex: wgpu::VertexState {
+            module: spec.module,
+            entry_point: Some("vs"),
+            compilation_options: Default::default(),
+            buffers: spec.vertex_buffers,
+        },
+        primitive: wgpu::PrimitiveState {
+            topology: spec.topology,
+            ..Default::default()
+        },
+        depth_stencil: spec.depth,
+        multisample: Default::default(),
+        fragment: Some(wgpu::FragmentState {
+            module: spec.module,
+            entry_point: Some("fs"),
+            compilation_options: Default::default(),
+            targets: spec.targets,
+        }),
+        multiview_mask: None,
+        cache: None,
+    })
+}
+
+/// A depth test (and write) against `format`.
+fn depth_state(
+    format: wgpu::TextureFormat,
+    write: bool,
+    compare: wgpu::CompareFunction,
+) -> Option<wgpu::DepthStencilState> {
+    Some(wgpu::DepthStencilState {
+        format,
+        depth_write_enabled: Some(write),
+        depth_compare: Some(compare),
+        stencil: Default::default(),
+        bias: Default::default(),
+    })
+}
+
 /// The reversed-depth projection of a camera (near plane at depth 1, far at 0).
 pub fn reversed_view_proj(camera: &Camera, planes: (f32, f32)) -> Mat4 {
     glam::camera::rh::proj::directx::perspective(
@@ -497,42 +558,22 @@ impl Renderer {
             attributes: &vertex_attributes,
         };
         let gmod = module(device, "gbuffer", GBUFFER);
-        let glayout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("gbuffer"),
-            bind_group_layouts: &[Some(&globals_layout), Some(&material_layout)],
-            immediate_size: 0,
-        });
-        let gbuffer_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("gbuffer"),
-            layout: Some(&glayout),
-            vertex: wgpu::VertexState {
+        let gbuffer_pipeline = pipeline(
+            device,
+            PipelineSpec {
+                label: "gbuffer",
+                bind_groups: &[&globals_layout, &material_layout],
                 module: &gmod,
-                entry_point: Some("vs"),
-                compilation_options: Default::default(),
-                buffers: &[Some(vertex_layout.clone())],
-            },
-            primitive: wgpu::PrimitiveState::default(),
-            depth_stencil: Some(wgpu::DepthStencilState {
-                format: DEPTH_FORMAT,
-                depth_write_enabled: Some(true),
-                depth_compare: Some(wgpu::CompareFunction::Greater),
-                stencil: Default::default(),
-                bias: Default::default(),
-            }),
-            multisample: Default::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &gmod,
-                entry_point: Some("fs"),
-                compilation_options: Default::default(),
+                vertex_buffers: &[Some(vertex_layout.clone())],
+                topology: wgpu::PrimitiveTopology::TriangleList,
+                depth: depth_state(DEPTH_FORMAT, true, wgpu::CompareFunction::Greater),
                 targets: &[
                     color_target(POSITION_FORMAT, None),
                     color_target(NORMAL_FORMAT, None),
                     color_target(ALBEDO_FORMAT, None),
                 ],
-            }),
-            multiview_mask: None,
-            cache: None,
-        });
+            },
+        );
 
         // Shadow pipeline: positions only.
         let shadow_attributes = wgpu::vertex_attr_array![0 => Float32x3];
@@ -546,38 +587,18 @@ impl Renderer {
             entries: &[uniform_entry(0, vs_frag)],
         });
         let smod = module(device, "shadow", SHADOW);
-        let slayout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("shadow"),
-            bind_group_layouts: &[Some(&face_layout)],
-            immediate_size: 0,
-        });
-        let shadow_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("shadow"),
-            layout: Some(&slayout),
-            vertex: wgpu::VertexState {
+        let shadow_pipeline = pipeline(
+            device,
+            PipelineSpec {
+                label: "shadow",
+                bind_groups: &[&face_layout],
                 module: &smod,
-                entry_point: Some("vs"),
-                compilation_options: Default::default(),
-                buffers: &[Some(shadow_vertex_layout)],
-            },
-            primitive: wgpu::PrimitiveState::default(),
-            depth_stencil: Some(wgpu::DepthStencilState {
-                format: SHADOW_FORMAT,
-                depth_write_enabled: Some(true),
-                depth_compare: Some(wgpu::CompareFunction::Less),
-                stencil: Default::default(),
-                bias: Default::default(),
-            }),
-            multisample: Default::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &smod,
-                entry_point: Some("fs"),
-                compilation_options: Default::default(),
+                vertex_buffers: &[Some(shadow_vertex_layout)],
+                topology: wgpu::PrimitiveTopology::TriangleList,
+                depth: depth_state(SHADOW_FORMAT, true, wgpu::CompareFunction::Less),
                 targets: &[],
-            }),
-            multiview_mask: None,
-            cache: None,
-        });
+            },
+        );
         let shadow_res = shadow_res.clamp(16, max_dim);
         let shadow_texture = device.create_texture(&wgpu::TextureDescriptor {
             label: Some("shadow maps"),
@@ -689,39 +710,22 @@ impl Renderer {
             ],
         });
         let spmod = module(device, "splat", SPLAT);
-        let splayout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("splat"),
-            bind_group_layouts: &[Some(&splat_layout)],
-            immediate_size: 0,
-        });
-        let splat_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("splat"),
-            layout: Some(&splayout),
-            vertex: wgpu::VertexState {
+        let splat_pipeline = pipeline(
+            device,
+            PipelineSpec {
+                label: "splat",
+                bind_groups: &[&splat_layout],
                 module: &spmod,
-                entry_point: Some("vs"),
-                compilation_options: Default::default(),
-                buffers: &[],
-            },
-            primitive: wgpu::PrimitiveState {
+                vertex_buffers: &[],
                 topology: wgpu::PrimitiveTopology::TriangleStrip,
-                ..Default::default()
-            },
-            depth_stencil: None,
-            multisample: Default::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &spmod,
-                entry_point: Some("fs"),
-                compilation_options: Default::default(),
+                depth: None,
                 targets: &[
                     color_target(acc_format, Some(additive())),
                     color_target(acc_format, Some(additive())),
                     color_target(acc_format, Some(additive())),
                 ],
-            }),
-            multiview_mask: None,
-            cache: None,
-        });
+            },
+        );
 
         // Resolve pipeline.
         let resolve_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -753,36 +757,22 @@ impl Renderer {
             ],
         });
         let rmod = module(device, "resolve", RESOLVE);
-        let rlayout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("resolve"),
-            bind_group_layouts: &[Some(&resolve_layout)],
-            immediate_size: 0,
-        });
-        let resolve_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("resolve"),
-            layout: Some(&rlayout),
-            vertex: wgpu::VertexState {
+        let resolve_pipeline = pipeline(
+            device,
+            PipelineSpec {
+                label: "resolve",
+                bind_groups: &[&resolve_layout],
                 module: &rmod,
-                entry_point: Some("vs"),
-                compilation_options: Default::default(),
-                buffers: &[],
-            },
-            primitive: wgpu::PrimitiveState::default(),
-            depth_stencil: None,
-            multisample: Default::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &rmod,
-                entry_point: Some("fs"),
-                compilation_options: Default::default(),
+                vertex_buffers: &[],
+                topology: wgpu::PrimitiveTopology::TriangleList,
+                depth: None,
                 targets: &[
                     color_target(RADIANCE_FORMAT, None),
                     color_target(RADIANCE_FORMAT, None),
                     color_target(RADIANCE_FORMAT, None),
                 ],
-            }),
-            multiview_mask: None,
-            cache: None,
-        });
+            },
+        );
 
         // Display and points (pipelines made per output format on first use).
         let display_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -1316,36 +1306,18 @@ impl Renderer {
         {
             return k;
         }
-        let layout = gpu
-            .device
-            .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                label: Some("display"),
-                bind_group_layouts: &[Some(&self.display_layout)],
-                immediate_size: 0,
-            });
-        let p = gpu
-            .device
-            .create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some("display"),
-                layout: Some(&layout),
-                vertex: wgpu::VertexState {
-                    module: &self.display_module,
-                    entry_point: Some("vs"),
-                    compilation_options: Default::default(),
-                    buffers: &[],
-                },
-                primitive: wgpu::PrimitiveState::default(),
-                depth_stencil: None,
-                multisample: Default::default(),
-                fragment: Some(wgpu::FragmentState {
-                    module: &self.display_module,
-                    entry_point: Some("fs"),
-                    compilation_options: Default::default(),
-                    targets: &[color_target(format, None)],
-                }),
-                multiview_mask: None,
-                cache: None,
-            });
+        let p = pipeline(
+            &gpu.device,
+            PipelineSpec {
+                label: "display",
+                bind_groups: &[&self.display_layout],
+                module: &self.display_module,
+                vertex_buffers: &[],
+                topology: wgpu::PrimitiveTopology::TriangleList,
+                depth: None,
+                targets: &[color_target(format, None)],
+            },
+        );
         self.display_pipelines.push((format, p));
         self.display_pipelines.len() - 1
     }
@@ -1354,45 +1326,18 @@ impl Renderer {
         if let Some(k) = self.points_pipelines.iter().position(|(f, _)| *f == format) {
             return k;
         }
-        let layout = gpu
-            .device
-            .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                label: Some("points"),
-                bind_group_layouts: &[Some(&self.points_layout)],
-                immediate_size: 0,
-            });
-        let p = gpu
-            .device
-            .create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some("points"),
-                layout: Some(&layout),
-                vertex: wgpu::VertexState {
-                    module: &self.points_module,
-                    entry_point: Some("vs"),
-                    compilation_options: Default::default(),
-                    buffers: &[],
-                },
-                primitive: wgpu::PrimitiveState {
-                    topology: wgpu::PrimitiveTopology::TriangleStrip,
-                    ..Default::default()
-                },
-                depth_stencil: Some(wgpu::DepthStencilState {
-                    format: DEPTH_FORMAT,
-                    depth_write_enabled: Some(false),
-                    depth_compare: Some(wgpu::CompareFunction::GreaterEqual),
-                    stencil: Default::default(),
-                    bias: Default::default(),
-                }),
-                multisample: Default::default(),
-                fragment: Some(wgpu::FragmentState {
-                    module: &self.points_module,
-                    entry_point: Some("fs"),
-                    compilation_options: Default::default(),
-                    targets: &[color_target(format, None)],
-                }),
-                multiview_mask: None,
-                cache: None,
-            });
+        let p = pipeline(
+            &gpu.device,
+            PipelineSpec {
+                label: "points",
+                bind_groups: &[&self.points_layout],
+                module: &self.points_module,
+                vertex_buffers: &[],
+                topology: wgpu::PrimitiveTopology::TriangleStrip,
+                depth: depth_state(DEPTH_FORMAT, false, wgpu::CompareFunction::GreaterEqual),
+                targets: &[color_target(format, None)],
+            },
+        );
         self.points_pipelines.push((format, p));
         self.points_pipelines.len() - 1
     }
