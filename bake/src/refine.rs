@@ -20,7 +20,9 @@
 //! those links and lost over 90 % of the indirect light in a closed box (measured against the
 //! path-traced reference). The level-0 block costs at most `N_0^2` links (115k for 339 points,
 //! about 2 MB). Such forced links do not queue the receiver's children: refinement follows the
-//! paper's test alone.
+//! paper's test alone. A finer receiver where no coarser level has support is such a base too:
+//! its links are full values (Eq. 17 subtracts nothing), so it gets the same rule, and it is
+//! queued even though no coarser receiver has it as a child.
 //!
 //! When any link of a receiver passed the test, its children are queued for the next level. The
 //! receivers of a level are processed in parallel; each one's result depends only on its index,
@@ -28,6 +30,7 @@
 
 use mlt_format::adjacency::Csr;
 use mlt_format::links::LINK_DIM;
+use mlt_format::shepard::MIN_WEIGHT_SUM;
 use mlt_format::IndexedBasis;
 use mlt_scenes::RayCaster;
 use rayon::prelude::*;
@@ -137,6 +140,7 @@ pub fn refine(
     let mut t = ReceiverLinks::new(b.len());
     let mut stats = RefineStats::default();
     let mut queue: Vec<u32> = b.level_range(0).map(|i| i as u32).collect();
+    let unreachable = unreachable_points(ib);
     for l in 0..b.levels() {
         if let Some(needed) = needed {
             queue.retain(|&i| needed[i as usize]);
@@ -175,11 +179,34 @@ pub fn refine(
         stats.receivers_refined.push(queue.len() as u64);
         stats.links_per_level.push(kept);
         on_level(l, queue.len(), kept as usize);
+        if let Some(extra) = unreachable.get(l + 1) {
+            next.extend_from_slice(extra);
+        }
         next.sort_unstable();
         next.dedup();
         queue = next;
     }
     (t, stats)
+}
+
+/// Per level, the points where the next coarser level has no support: no receiver of that
+/// level has them as children, so they are queued for their own level regardless (otherwise
+/// they would never be computed, and their coefficient would stay zero: a black patch where
+/// point placement left the coarser level sparse). Level 0 is empty (it is queued whole).
+fn unreachable_points(ib: &IndexedBasis) -> Vec<Vec<u32>> {
+    let b = &ib.basis;
+    (0..b.levels())
+        .map(|l| {
+            if l == 0 {
+                return Vec::new();
+            }
+            b.level_range(l)
+                .into_par_iter()
+                .filter(|&i| ib.weight_sum(l - 1, b.positions[i], b.normals[i]) <= MIN_WEIGHT_SUM)
+                .map(|i| i as u32)
+                .collect()
+        })
+        .collect()
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -209,8 +236,11 @@ fn process(
     // Eq. 17: subtract what the coarser receiver levels already represent at p_i, using the
     // links they kept (discarded links are zero in the representation).
     let (x, n) = (ib.basis.positions[i], ib.basis.normals[i]);
+    // Whether any coarser level represents something here: if none does, this receiver's
+    // links are full values, not differences, and it is a base of the hierarchy like level 0.
+    let mut has_parent = false;
     for m in 0..level {
-        ib.for_each_basis_value(m, x, n, |k, bk| {
+        has_parent |= ib.for_each_basis_value(m, x, n, |k, bk| {
             let (senders, values) = t.row(k);
             for (s, v) in senders.iter().zip(values) {
                 scratch.add(*s, v, -bk);
@@ -227,7 +257,7 @@ fn process(
         let v = scratch.get(j);
         if link_norm(v) <= eps {
             // The base block of the hierarchy (module docs): kept, without refining.
-            if level == 0 && j < sender_coarsest && link_norm(v) > 0.0 {
+            if (level == 0 || !has_parent) && j < sender_coarsest && link_norm(v) > 0.0 {
                 links.push((j, *v));
             }
             continue;

@@ -304,3 +304,46 @@ fn links_between_the_coarsest_receivers_and_senders_are_never_truncated() {
         stats.spectral_radius
     );
 }
+
+#[test]
+fn finer_points_without_coarser_support_are_computed_and_keep_their_links() {
+    // Where placement leaves a coarser level without support, a finer point is no coarser
+    // receiver's child; it must still be computed, and as a base of the hierarchy (its links
+    // are full values, not differences) keep its links from the coarsest senders, or its
+    // coefficient stays zero: a black patch (seen on the Cornell box's short block).
+    let out = bake_with(
+        "builtin:cornell",
+        BakeOptions {
+            receiver_levels: Some(3),
+            coarse_count: Some(339),
+            gather_rays: Some(16),
+            ..Default::default()
+        },
+        2,
+    );
+    let ib = &out.contents.basis;
+    let b = &ib.basis;
+    let transport = out.contents.transport.as_ref().unwrap();
+    let mut has_links = vec![false; b.len()];
+    for &r in &transport.links.receiver_ids {
+        has_links[r as usize] = true;
+    }
+    let mut orphans = 0;
+    for l in 1..b.levels() {
+        for i in b.level_range(l) {
+            let supported = (0..l).any(|m| ib.weight_sum(m, b.positions[i], b.normals[i]) > 0.0);
+            if !supported {
+                orphans += 1;
+                assert!(
+                    has_links[i],
+                    "point {i} (level {l}) has no coarser support and no links"
+                );
+            }
+        }
+    }
+    assert!(
+        orphans > 0,
+        "the scene no longer has such points: pick another setting"
+    );
+    eprintln!("{orphans} points without coarser support, all with links");
+}
