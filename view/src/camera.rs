@@ -128,6 +128,22 @@ impl Camera {
     }
 }
 
+/// Parses `x,y,z` (three finite numbers) from the command line.
+pub fn parse_vec3(s: &str) -> Result<Vec3, String> {
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|c| {
+            c.trim()
+                .parse::<f32>()
+                .map_err(|_| format!("'{c}' is not a number"))
+        })
+        .collect::<Result<_, _>>()?;
+    if v.len() != 3 || v.iter().any(|c| !c.is_finite()) {
+        return Err(format!("'{s}' is not three finite numbers x,y,z"));
+    }
+    Ok(Vec3::new(v[0], v[1], v[2]))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

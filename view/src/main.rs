@@ -36,13 +36,13 @@ struct Cli {
     #[arg(long, requires = "headless")]
     out: Option<PathBuf>,
     /// Camera position (default: the file's camera).
-    #[arg(long, value_parser = vec3)]
+    #[arg(long, value_parser = mlt_view::camera::parse_vec3)]
     camera_pos: Option<Vec3>,
     /// Camera target.
-    #[arg(long, value_parser = vec3)]
+    #[arg(long, value_parser = mlt_view::camera::parse_vec3)]
     camera_target: Option<Vec3>,
     /// Camera up vector.
-    #[arg(long, value_parser = vec3)]
+    #[arg(long, value_parser = mlt_view::camera::parse_vec3)]
     camera_up: Option<Vec3>,
     /// Vertical field of view, degrees.
     #[arg(long)]
@@ -54,13 +54,13 @@ struct Cli {
     #[arg(long)]
     height: Option<u32>,
     /// Light position (default: the file's light).
-    #[arg(long, value_parser = vec3)]
+    #[arg(long, value_parser = mlt_view::camera::parse_vec3)]
     light_pos: Option<Vec3>,
     /// Light RGB intensity in W/sr.
-    #[arg(long, value_parser = vec3)]
+    #[arg(long, value_parser = mlt_view::camera::parse_vec3)]
     light_intensity: Option<Vec3>,
     /// Spot direction (with --cone-deg): makes the light a spot.
-    #[arg(long, value_parser = vec3, requires = "cone_deg")]
+    #[arg(long, value_parser = mlt_view::camera::parse_vec3, requires = "cone_deg")]
     light_dir: Option<Vec3>,
     /// Spot full cone angle, degrees.
     #[arg(long, requires = "light_dir")]
@@ -125,21 +125,6 @@ impl FlattenOn {
             FlattenOn::Auto => !gpu.is_software(),
         }
     }
-}
-
-fn vec3(s: &str) -> Result<Vec3, String> {
-    let v: Vec<f32> = s
-        .split(',')
-        .map(|c| {
-            c.trim()
-                .parse::<f32>()
-                .map_err(|_| format!("'{c}' is not a number"))
-        })
-        .collect::<Result<_, _>>()?;
-    if v.len() != 3 || v.iter().any(|c| !c.is_finite()) {
-        return Err(format!("'{s}' is not three finite numbers x,y,z"));
-    }
-    Ok(Vec3::new(v[0], v[1], v[2]))
 }
 
 fn main() -> Result<()> {

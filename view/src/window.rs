@@ -232,8 +232,7 @@ impl App<'_> {
         }
         if s.tone_dirty {
             // Reinhard's key needs the image's log-average luminance: read the final buffer.
-            let buffers = s.renderer.read_buffers(&s.gpu)?;
-            s.tone = ToneMap::measure(&buffers.final_);
+            s.tone = ToneMap::measure(&s.renderer.read_final(&s.gpu)?);
             s.tone_dirty = false;
         }
         let output = match s.surface.get_current_texture() {
@@ -325,9 +324,8 @@ impl App<'_> {
             .with_context(|| format!("encoding {}", png.display()))?;
         mlt_format::file::write_atomic(&png, bytes.get_ref())
             .with_context(|| format!("writing {}", png.display()))?;
-        let buffers = s.renderer.read_buffers(&s.gpu)?;
         let exr = dir.join(format!("{name}-final.exr"));
-        buffers.final_.write_exr(&exr)?;
+        s.renderer.read_final(&s.gpu)?.write_exr(&exr)?;
         eprintln!("view: wrote {} and {}", png.display(), exr.display());
         Ok(())
     }

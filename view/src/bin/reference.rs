@@ -40,10 +40,10 @@ struct Cli {
     #[arg(long, default_value_t = DEFAULT_MAX_BOUNCES)]
     max_bounces: u32,
     /// Light position (default: the file's or scene's light).
-    #[arg(long, value_parser = vec3)]
+    #[arg(long, value_parser = mlt_view::camera::parse_vec3)]
     light_pos: Option<Vec3>,
     /// Light RGB intensity in W/sr.
-    #[arg(long, value_parser = vec3)]
+    #[arg(long, value_parser = mlt_view::camera::parse_vec3)]
     light_intensity: Option<Vec3>,
     /// Image width (default: the camera's); the field of view is kept.
     #[arg(long)]
@@ -63,21 +63,6 @@ struct Cli {
     /// Grid of --make-probes, COLSxROWS.
     #[arg(long, default_value = "32x18")]
     probe_grid: String,
-}
-
-fn vec3(s: &str) -> Result<Vec3, String> {
-    let v: Vec<f32> = s
-        .split(',')
-        .map(|c| {
-            c.trim()
-                .parse::<f32>()
-                .map_err(|_| format!("'{c}' is not a number"))
-        })
-        .collect::<Result<_, _>>()?;
-    if v.len() != 3 || v.iter().any(|c| !c.is_finite()) {
-        return Err(format!("'{s}' is not three finite numbers x,y,z"));
-    }
-    Ok(Vec3::new(v[0], v[1], v[2]))
 }
 
 fn main() -> Result<()> {

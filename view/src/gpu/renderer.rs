@@ -1258,31 +1258,29 @@ impl Renderer {
 
     /// Reads back direct, indirect and final linear radiance.
     pub fn read_buffers(&self, gpu: &Gpu) -> Result<Buffers, GpuError> {
-        let t = self
-            .targets
-            .as_ref()
-            .ok_or_else(|| GpuError::Readback("nothing rendered yet".into()))?;
-        let rgb = |tex: &wgpu::Texture| -> Result<RgbImage, GpuError> {
-            let data = read_rgba32f(gpu, tex)?;
-            Ok(RgbImage {
-                width: t.width,
-                height: t.height,
-                pixels: data.chunks_exact(4).map(|c| [c[0], c[1], c[2]]).collect(),
-            })
-        };
+        let t = self.rendered()?;
         Ok(Buffers {
-            direct: rgb(&t.direct)?,
-            indirect: rgb(&t.indirect)?,
-            final_: rgb(&t.final_)?,
+            direct: read_rgb(gpu, t, &t.direct)?,
+            indirect: read_rgb(gpu, t, &t.indirect)?,
+            final_: read_rgb(gpu, t, &t.final_)?,
         })
+    }
+
+    /// Reads back the final linear radiance only (what tone mapping measures).
+    pub fn read_final(&self, gpu: &Gpu) -> Result<RgbImage, GpuError> {
+        let t = self.rendered()?;
+        read_rgb(gpu, t, &t.final_)
+    }
+
+    fn rendered(&self) -> Result<&Targets, GpuError> {
+        self.targets
+            .as_ref()
+            .ok_or_else(|| GpuError::Readback("nothing rendered yet".into()))
     }
 
     /// Reads back the G-buffer.
     pub fn read_gbuffer(&self, gpu: &Gpu) -> Result<GBuffer, GpuError> {
-        let t = self
-            .targets
-            .as_ref()
-            .ok_or_else(|| GpuError::Readback("nothing rendered yet".into()))?;
+        let t = self.rendered()?;
         let p = read_rgba32f(gpu, &t.position)?;
         let n = read_rgba32f(gpu, &t.normal)?;
         let a = read_albedo(gpu, &t.albedo)?;
@@ -1445,6 +1443,16 @@ impl Renderer {
             None => Ok(()),
         }
     }
+}
+
+/// One RGBA32F target as an RGB image.
+fn read_rgb(gpu: &Gpu, t: &Targets, tex: &wgpu::Texture) -> Result<RgbImage, GpuError> {
+    let data = read_rgba32f(gpu, tex)?;
+    Ok(RgbImage {
+        width: t.width,
+        height: t.height,
+        pixels: data.chunks_exact(4).map(|c| [c[0], c[1], c[2]]).collect(),
+    })
 }
 
 /// Reads the f16 albedo target (copies cannot convert formats, so the texels are converted
