@@ -4,6 +4,7 @@
 
 use mlt_format::kernel::support_factor;
 use mlt_format::meta::LevelStats;
+use mlt_format::morton::morton_order;
 use mlt_format::Basis;
 use mlt_scenes::RayCaster;
 
@@ -112,7 +113,13 @@ pub fn place(
         }
         hmd_rays += rays;
         let support = support_factor(l, levels, c_coarse, c_fine) * r;
-        for p in &points {
+        // Stored in Morton order, so that neighbouring indices are neighbouring points (what
+        // the viewer's per-frame products read stays in cache; `mlt_format::morton`).
+        let positions: Vec<[f32; 3]> = points.iter().map(|p| p.position.to_array()).collect();
+        for p in morton_order(&positions)
+            .into_iter()
+            .map(|i| &points[i as usize])
+        {
             basis.positions.push(p.position.to_array());
             basis.normals.push(p.normal.normalize().to_array());
             basis.radii.push(support);

@@ -6,7 +6,7 @@
 //! - [`shepard`]: per-level Shepard basis (Eq. 2) and hierarchical reconstruction (Eq. 6);
 //! - [`pull_push`]: coarse-to-fine projection `P` (Eq. 7) and pull-push `P-dagger`;
 //! - [`flatten`]: resampling to a single level, [`flatten_op`]: its precomputed sparse
-//!   operator; [`adjacency`]: neighbours, parents, children;
+//!   operator; [`adjacency`]: neighbours, parents, children; [`morton`]: the point order;
 //! - [`container`], [`meta`], [`file`]: the versioned, memory-mappable file.
 //!
 //! This crate depends on no mesh, GPU or windowing crate.
@@ -21,6 +21,7 @@ pub mod flatten_op;
 pub mod kernel;
 pub mod links;
 pub mod meta;
+pub mod morton;
 pub mod pull_push;
 pub mod rtree;
 pub mod shard;

@@ -296,9 +296,12 @@ impl ReceiverLinks {
     /// Panics unless `e.len() >= 3 * senders` and `i.len() == 9 * receivers`.
     pub fn apply(&self, e: &[f32], threshold: f32, i: &mut [f32]) -> usize {
         use rayon::prelude::*;
-        assert_eq!(i.len(), self.receivers as usize * LINK_DIM);
+        let n = self.receivers as usize;
+        assert_eq!(i.len(), n * LINK_DIM);
         let mut used = 0;
-        let w: Vec<[f32; 3]> = self
+        // Each stored sender's scaled light, repeated per vector component, so that a link
+        // multiplies it element by element (the same products as `ArchivedLinks::apply`).
+        let w: Vec<[f32; LINK_DIM]> = self
             .sender_ids
             .iter()
             .zip(&self.scales)
@@ -306,40 +309,73 @@ impl ReceiverLinks {
                 let s = s as usize;
                 let es = [e[3 * s], e[3 * s + 1], e[3 * s + 2]];
                 if es.iter().all(|x| x.abs() <= threshold) {
-                    [0.0; 3]
+                    [0.0; LINK_DIM]
                 } else {
                     used += 1;
-                    [es[0] * scale, es[1] * scale, es[2] * scale]
+                    std::array::from_fn(|k| es[k / 3] * scale)
                 }
             })
             .collect();
-        let mut compact = vec![0.0f32; self.receiver_ids.len() * LINK_DIM];
-        compact
-            .par_chunks_mut(RECEIVER_CHUNK * LINK_DIM)
-            .enumerate()
-            .for_each(|(chunk, out)| {
-                for (q, o) in out.chunks_exact_mut(LINK_DIM).enumerate() {
-                    let r = chunk * RECEIVER_CHUNK + q;
-                    let (a, b) = (self.offsets[r] as usize, self.offsets[r + 1] as usize);
-                    let mut acc = [0.0f32; LINK_DIM];
-                    for (&slot, v) in self.slots[a..b].iter().zip(&self.values[a..b]) {
-                        let ws = w[slot as usize];
-                        for c in 0..3 {
-                            for d in 0..3 {
-                                acc[c * 3 + d] += ws[c] * v[c * 3 + d];
-                            }
-                        }
-                    }
-                    o.copy_from_slice(&acc);
-                }
-            });
-        i.fill(0.0);
-        for (q, &r) in self.receiver_ids.iter().enumerate() {
-            let r = r as usize;
-            i[r * LINK_DIM..(r + 1) * LINK_DIM]
-                .copy_from_slice(&compact[q * LINK_DIM..(q + 1) * LINK_DIM]);
+        // Chunks of receivers own disjoint, consecutive ranges of `i` (receivers ascend): from
+        // their first receiver to the next chunk's first, the first chunk from point 0.
+        let receivers = &self.receiver_ids;
+        let chunks = receivers.len().div_ceil(RECEIVER_CHUNK);
+        let mut parts = Vec::with_capacity(chunks.max(1));
+        let mut rest = i;
+        let mut at = 0usize;
+        for c in 0..chunks {
+            let end = if c + 1 < chunks {
+                receivers[(c + 1) * RECEIVER_CHUNK] as usize
+            } else {
+                n
+            };
+            let (head, tail) = std::mem::take(&mut rest).split_at_mut((end - at) * LINK_DIM);
+            parts.push((c, at, head));
+            rest = tail;
+            at = end;
         }
+        rest.fill(0.0);
+        #[cfg(target_arch = "x86_64")]
+        let avx2 = std::arch::is_x86_feature_detected!("avx2");
+        parts.into_par_iter().for_each(|(c, first, out)| {
+            #[cfg(target_arch = "x86_64")]
+            if avx2 {
+                // SAFETY: this CPU has AVX2 (checked above), the only requirement for calling
+                // a function compiled with it.
+                unsafe { self.chunk_avx2(&w, c, first, out) };
+                return;
+            }
+            self.chunk(&w, c, first, out);
+        });
         used
+    }
+
+    /// [`ReceiverLinks::chunk`] compiled with AVX2 (8 of a link's 9 products in one
+    /// instruction; no fused multiply-adds, so the same bits).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn chunk_avx2(&self, w: &[[f32; LINK_DIM]], c: usize, first: usize, out: &mut [f32]) {
+        self.chunk(w, c, first, out);
+    }
+
+    /// The receivers of chunk `c` into `out`, which starts at point `first`.
+    #[inline(always)]
+    fn chunk(&self, w: &[[f32; LINK_DIM]], c: usize, first: usize, out: &mut [f32]) {
+        let receivers = &self.receiver_ids;
+        out.fill(0.0);
+        let qs = c * RECEIVER_CHUNK..((c + 1) * RECEIVER_CHUNK).min(receivers.len());
+        for q in qs {
+            let r = receivers[q] as usize - first;
+            let (a, b) = (self.offsets[q] as usize, self.offsets[q + 1] as usize);
+            let mut acc = [0.0f32; LINK_DIM];
+            for (&slot, v) in self.slots[a..b].iter().zip(&self.values[a..b]) {
+                let ws = &w[slot as usize];
+                for d in 0..LINK_DIM {
+                    acc[d] += ws[d] * v[d];
+                }
+            }
+            out[r * LINK_DIM..(r + 1) * LINK_DIM].copy_from_slice(&acc);
+        }
     }
 }
 

@@ -234,6 +234,16 @@ impl PullPushOp {
     /// The pull in place: each parent with children gets their weighted average, finest
     /// parents first. `values` holds `dim` floats per covered point.
     pub fn pull(&self, values: &mut [f32], dim: usize) {
+        // Inlined per common dimension, so that each copy's inner loops have a constant length.
+        match dim {
+            1 => self.pull_dim(values, 1),
+            3 => self.pull_dim(values, 3),
+            _ => self.pull_dim(values, dim),
+        }
+    }
+
+    #[inline(always)]
+    fn pull_dim(&self, values: &mut [f32], dim: usize) {
         assert!(dim <= MAX_DIM && values.len() == self.points * dim);
         let mut num = [0.0f32; MAX_DIM];
         for (p, &i) in self.pull_parents.iter().enumerate() {
@@ -261,6 +271,15 @@ impl PullPushOp {
 
     /// The push in place (Eq. 7): values become coefficients, coarse to fine.
     pub fn push(&self, values: &mut [f32], dim: usize) {
+        match dim {
+            1 => self.push_dim(values, 1),
+            3 => self.push_dim(values, 3),
+            _ => self.push_dim(values, dim),
+        }
+    }
+
+    #[inline(always)]
+    fn push_dim(&self, values: &mut [f32], dim: usize) {
         assert!(dim <= MAX_DIM && values.len() == self.points * dim);
         let mut acc = [0.0f32; MAX_DIM];
         let mut approx = [0.0f32; MAX_DIM];

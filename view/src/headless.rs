@@ -41,6 +41,8 @@ pub struct Timings {
     pub splatted_points: usize,
     pub basis_points: usize,
     pub median_senders_used: f64,
+    /// Shadow rays cast per relit frame for the direct light at the senders (median).
+    pub median_shadow_rays_cast: f64,
     pub adapter: AdapterReport,
     pub accumulation_format: String,
     /// The relighter's one-time set-up (precomputed operators), when it reports one.
@@ -134,6 +136,7 @@ pub fn render(
     let mut cpu: Vec<StageTimes> = Vec::new();
     let mut gpu_times: Vec<RenderTimes> = Vec::new();
     let mut senders = Vec::new();
+    let mut rays = Vec::new();
     let moving = frames > 1;
     for f in 0..frames {
         let l = if moving {
@@ -144,6 +147,7 @@ pub fn render(
         let frame = relighter.relight(&l);
         cpu.push(frame.times);
         senders.push(frame.senders_used as f64);
+        rays.push(frame.shadow_rays as f64);
         let flatten_ms = upload(gpu, renderer, frame, true)?;
         // Every frame is a full frame: the camera is redrawn too, as when a window resizes.
         renderer.invalidate();
@@ -188,6 +192,7 @@ pub fn render(
         splatted_points: gpu_times.last().map(|t| t.splatted_points).unwrap_or(0),
         basis_points: ib.basis.len(),
         median_senders_used: median(senders),
+        median_shadow_rays_cast: median(rays),
         adapter: gpu.report.clone(),
         accumulation_format: format!("{:?}", renderer.accumulation_format()),
         load: None,

@@ -71,6 +71,10 @@ struct Cli {
     /// Shadow rays per sender point for the direct light at the senders.
     #[arg(long, default_value_t = 8)]
     shadow_rays: u32,
+    /// Cast every shadow ray at every point; by default half are cast first and the rest only
+    /// where those disagree (the penumbra).
+    #[arg(long)]
+    all_shadow_rays: bool,
     /// Where the fourth relighting stage, flattening, runs: `gpu` (a compute pass), `cpu`, or
     /// `auto`: the GPU unless the adapter is a software rasteriser (on llvmpipe the compute
     /// pass costs more of the same CPU than the CPU path).
@@ -191,6 +195,7 @@ fn main() -> Result<()> {
     let sender_levels = tm.params.sender_levels as usize;
     let mut relighter =
         CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, cli.shadow_rays);
+    relighter.adaptive_shadows = !cli.all_shadow_rays;
     let (lo, hi) = (
         Vec3::from(meta.scene.bounds_min),
         Vec3::from(meta.scene.bounds_max),
@@ -288,6 +293,7 @@ fn main() -> Result<()> {
     if let Some(n) = cli.frames {
         let mut per_stage: [Vec<f64>; 4] = Default::default();
         let mut senders = Vec::new();
+        let mut rays = Vec::new();
         for f in 0..n.max(1) {
             let l = light_on_path(&light, path_radius, f, n.max(1));
             let frame = relighter.relight(&l);
@@ -297,6 +303,7 @@ fn main() -> Result<()> {
             per_stage[2].push(t.transport_ms);
             per_stage[3].push(t.flatten_ms);
             senders.push(frame.senders_used as f64);
+            rays.push(frame.shadow_rays as f64);
         }
         let [d, p, s, fl] = per_stage.map(median);
         let json = serde_json::json!({
@@ -304,9 +311,11 @@ fn main() -> Result<()> {
             "frames": n,
             "moving_light": true,
             "shadow_rays": cli.shadow_rays,
+            "adaptive_shadow_rays": !cli.all_shadow_rays,
             "threads": rayon::current_num_threads(),
             "median_ms": {"direct": d, "project": p, "transport": s, "flatten": fl, "total": d + p + s + fl},
             "median_senders_used": median(senders),
+            "median_shadow_rays_cast": median(rays),
             "load": relighter.load_stats(),
             "gpu": "not used: CPU relighting only (add --headless --out DIR to render)",
         });

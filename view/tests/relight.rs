@@ -197,7 +197,8 @@ fn bits(v: &[f32]) -> Vec<u32> {
 
 /// The precomputed operators give what the reference stages give: `e` the same bits as
 /// `pull_push_levels` of the ray-cast samples, `i` the same bits as the stored links' `apply`,
-/// `flat` equal to `flatten(i)` up to rounding; and the same bits for 1 and 2 threads.
+/// `flat` close to `flatten(i)` (the operator's 16-bit values and dropped values below 1e-3
+/// cost about 1e-3, relative); and the same bits for 1 and 2 threads.
 #[test]
 fn precomputed_stages_match_the_reference_stages() {
     let d = temp("stages");
@@ -237,7 +238,7 @@ fn precomputed_stages_match_the_reference_stages() {
         })
     };
     let (frame, samples, stats) = run(2);
-    assert!(stats.flatten_entries > 0 && stats.flatten_bytes >= 8 * stats.flatten_entries);
+    assert!(stats.flatten_entries > 0 && stats.flatten_bytes >= 4 * stats.flatten_entries);
     let senders = ib.basis.level_offsets[sender_levels] as usize;
     assert!(stats.direct_points < senders, "{stats:?}");
 
@@ -260,13 +261,86 @@ fn precomputed_stages_match_the_reference_stages() {
         .zip(&reference)
         .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
     assert!(
-        diff <= 1e-5 * scale,
+        diff <= 1e-2 * scale,
         "flat differs by {diff} (scale {scale})"
     );
+    let (num, den) = frame
+        .flat
+        .iter()
+        .zip(&reference)
+        .fold((0.0f64, 0.0f64), |(n, d), (a, b)| {
+            (n + f64::from(a - b).powi(2), d + f64::from(*b).powi(2))
+        });
+    let rms = (num / den).sqrt();
+    assert!(rms < 2e-3, "flat differs by {rms} (relative rms)");
 
     let (one, _, _) = run(1);
     assert_eq!(bits(&one.direct), bits(&frame.direct));
     assert_eq!(bits(&one.flat), bits(&frame.flat));
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+/// Adaptive shadow rays (half first, the rest only where they disagree) cast fewer rays and
+/// change the direct light only in the penumbra, where they still give fractions.
+#[test]
+fn adaptive_shadow_rays_only_refine_the_penumbra() {
+    let d = temp("adaptive");
+    let f = d.join("cornell.mlt");
+    let spec = "builtin:cornell";
+    bake_to(
+        &f,
+        spec,
+        BakeOptions {
+            receiver_levels: Some(4),
+            coarse_count: Some(40),
+            gather_rays: Some(16),
+            ..Default::default()
+        },
+    );
+    let file = BakedFile::open(&f).unwrap();
+    let ib = file.basis().unwrap();
+    let tm = file.transport_meta().unwrap().unwrap();
+    let sender_levels = tm.params.sender_levels as usize;
+    let lb = file.links_bytes().unwrap().unwrap();
+    let links = file.access_links(&lb).unwrap();
+    let scene = mlt_scenes::load_scene(spec).unwrap();
+    let caster = scene.build_caster();
+    // Low and to the side: the blocks cast long shadows with wide penumbrae on the floor.
+    let light = Light::point(Vec3::new(0.1, 0.2, 0.3), [0.3, 0.25, 0.2]).unwrap();
+    let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, 8);
+    let (adaptive, adaptive_rays) = r.direct_counted(&light);
+    r.adaptive_shadows = false;
+    let (full, full_rays) = r.direct_counted(&light);
+    assert!(
+        adaptive_rays < full_rays * 9 / 10,
+        "{adaptive_rays} of {full_rays} rays"
+    );
+    let (mut fractional, mut changed, mut total, mut moved) = (0, 0, 0.0f64, 0.0f64);
+    for (j, (a, b)) in adaptive.chunks(3).zip(full.chunks(3)).enumerate() {
+        let (x, n) = (ib.basis.positions[j], ib.basis.normals[j]);
+        let unshadowed = light.irradiance(Vec3::from(x), Vec3::from(n))[0];
+        if unshadowed <= 0.0 || (a[0] == 0.0 && b[0] == 0.0) {
+            continue;
+        }
+        let (va, vb) = (a[0] / unshadowed, b[0] / unshadowed);
+        if va > 0.01 && va < 0.99 {
+            fractional += 1;
+            // Where the odd rays were cast the result is the full estimate.
+            assert!((va - vb).abs() < 1e-5, "{va} {vb}");
+        }
+        if (va - vb).abs() > 1e-5 {
+            changed += 1;
+            // Only where the full estimate is itself in the penumbra.
+            assert!(vb > 0.0 && vb < 1.0, "{va} {vb}");
+        }
+        total += f64::from(b[0]);
+        moved += f64::from((a[0] - b[0]).abs());
+    }
+    assert!(fractional > 0, "no penumbra");
+    assert!(
+        moved < 0.05 * total,
+        "{changed} points moved {moved} of {total}"
+    );
     let _ = std::fs::remove_dir_all(&d);
 }
 

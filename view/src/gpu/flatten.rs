@@ -4,7 +4,7 @@
 //! writes the flat coefficients straight into the buffer the splatting pass reads. Each row is
 //! summed in its stored order, as on the CPU.
 
-use mlt_format::flatten_op::FlattenOp;
+use mlt_format::flatten_op::{FlattenOp, BLOCK_ROWS, QUANTUM};
 use mlt_format::links::LINK_DIM;
 use wgpu::util::DeviceExt;
 
@@ -49,16 +49,28 @@ impl GpuFlatten {
         let parts = op.parts();
         let points = op.points();
         let max_binding = device.limits().max_storage_buffer_binding_size as usize;
-        let largest = 4 * parts.slots.len().max(points * LINK_DIM);
+        let largest = 4 * parts.entries.len().max(points * LINK_DIM);
         if largest > max_binding {
             return Err(GpuError::Validation(format!(
                 "the flattening operator needs a {largest}-byte storage buffer; the adapter allows {max_binding}"
             )));
         }
-        let offsets = storage(gpu, "flatten offsets", bytemuck::cast_slice(parts.offsets));
-        let slots = storage(gpu, "flatten slots", bytemuck::cast_slice(parts.slots));
-        let values = storage(gpu, "flatten values", bytemuck::cast_slice(parts.values));
-        let cols = storage(gpu, "flatten columns", bytemuck::cast_slice(parts.cols));
+        let offsets = storage(
+            gpu,
+            "flatten offsets",
+            bytemuck::cast_slice(parts.row_offsets),
+        );
+        let packed = storage(gpu, "flatten entries", bytemuck::cast_slice(parts.entries));
+        let block_offsets = storage(
+            gpu,
+            "flatten block offsets",
+            bytemuck::cast_slice(parts.block_offsets),
+        );
+        let cols = storage(
+            gpu,
+            "flatten columns",
+            bytemuck::cast_slice(parts.block_cols),
+        );
         let order = storage(gpu, "flatten order", bytemuck::cast_slice(parts.order));
         let hier = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("hierarchical coefficients"),
@@ -71,7 +83,12 @@ impl GpuFlatten {
         let groups = (total_groups.min(max_x), total_groups.div_ceil(max_x));
         let params = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("flatten params"),
-            contents: bytemuck::cast_slice(&[points as u32, groups.0 * WORKGROUP, 0, 0]),
+            contents: bytemuck::cast_slice(&[
+                points as u32,
+                groups.0 * WORKGROUP,
+                BLOCK_ROWS as u32,
+                QUANTUM,
+            ]),
             usage: wgpu::BufferUsages::UNIFORM,
         });
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -88,7 +105,14 @@ impl GpuFlatten {
         });
         let layout = pipeline.get_bind_group_layout(0);
         let buffers = [
-            &offsets, &slots, &values, &cols, &order, &hier, output, &params,
+            &offsets,
+            &packed,
+            &block_offsets,
+            &cols,
+            &order,
+            &hier,
+            output,
+            &params,
         ];
         let entries: Vec<wgpu::BindGroupEntry<'_>> = buffers
             .iter()
@@ -106,7 +130,7 @@ impl GpuFlatten {
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(GpuError::Validation(e.to_string()));
         }
-        let bytes = [&offsets, &slots, &values, &cols, &order, &hier]
+        let bytes = [&offsets, &packed, &block_offsets, &cols, &order, &hier]
             .iter()
             .map(|b| b.size())
             .sum();

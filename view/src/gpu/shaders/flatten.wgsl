@@ -1,15 +1,17 @@
 // Flattening on the GPU (section 4.1): the precomputed sparse operator of
 // format/src/flatten_op.rs applied to the hierarchical coefficients `i`, one invocation per
-// flat point, each row summed in its stored order.
+// flat point, each row summed in its stored order. An entry packs the block-local column (low
+// 16 bits) and the value as a fraction of `counts.w` (high 16 bits).
 
 struct Params {
-    // x: number of points; y: invocations per row of the dispatch grid.
+    // x: number of points; y: invocations per row of the dispatch grid; z: rows per block;
+    // w: the values' fixed-point scale.
     counts: vec4<u32>,
 };
 
 @group(0) @binding(0) var<storage, read> offsets: array<u32>;
-@group(0) @binding(1) var<storage, read> slots: array<u32>;
-@group(0) @binding(2) var<storage, read> values: array<f32>;
+@group(0) @binding(1) var<storage, read> entries: array<u32>;
+@group(0) @binding(2) var<storage, read> block_offsets: array<u32>;
 @group(0) @binding(3) var<storage, read> cols: array<u32>;
 @group(0) @binding(4) var<storage, read> order: array<u32>;
 @group(0) @binding(5) var<storage, read> hier: array<f32>;
@@ -22,14 +24,17 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     if pos >= params.counts.x {
         return;
     }
+    let base = block_offsets[pos / params.counts.z];
+    let scale = 1.0 / f32(params.counts.w);
     var acc: array<f32, 9>;
     for (var d = 0u; d < 9u; d++) {
         acc[d] = 0.0;
     }
     let end = offsets[pos + 1u];
     for (var e = offsets[pos]; e < end; e++) {
-        let k = cols[slots[e]] * 9u;
-        let v = values[e];
+        let packed = entries[e];
+        let k = cols[base + (packed & 0xffffu)] * 9u;
+        let v = f32(packed >> 16u) * scale;
         for (var d = 0u; d < 9u; d++) {
             acc[d] += v * hier[k + d];
         }
