@@ -2,29 +2,23 @@
 //! hold"). They need a Vulkan adapter; on machines without a GPU, Mesa's software driver
 //! (`scripts/setup.sh` installs it) serves.
 
+mod common;
+
 use std::process::Command;
 
+use common::bake_to;
 use glam::Vec3;
-use mlt_bake::{bake_scene, BakeOptions, Silent};
+use mlt_bake::BakeOptions;
 use mlt_format::flatten::reconstruct_flat;
 use mlt_format::links::LINK_DIM;
-use mlt_format::{BakedFile, WriteOptions};
+use mlt_format::BakedFile;
 use mlt_view::gpu::mesh::GpuMesh;
 use mlt_view::gpu::{Buffers, GBuffer, Gpu, Renderer};
 use mlt_view::images::RgbImage;
 use mlt_view::{Camera, CpuRelighter, Light, Relight};
 
-fn bake_to(path: &std::path::Path, spec: &str, opts: BakeOptions) {
-    let scene = mlt_scenes::load_scene(spec).unwrap();
-    let out = bake_scene(&scene, &opts, &Silent).unwrap();
-    mlt_format::file::write(path, &out.contents, WriteOptions::default()).unwrap();
-}
-
 fn temp(name: &str) -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("mlt-gpu-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    common::temp_dir("gpu", name)
 }
 
 fn gpu() -> Gpu {

@@ -1,6 +1,8 @@
 //! The brute-force reference against the closed sphere's analytic answer, its noise estimate,
 //! determinism, and the compare measures.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -14,10 +16,7 @@ use mlt_view::reference::{
 use mlt_view::{Camera, Light, RgbImage};
 
 fn temp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("mlt-reference-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    common::temp_dir("reference", name)
 }
 
 /// A camera inside the sphere of radius 2 at the origin, looking at its wall.

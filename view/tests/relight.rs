@@ -1,27 +1,54 @@
 //! CPU relighting and probes against known answers.
 
+mod common;
+
 use std::process::Command;
 
+use common::bake_to;
 use glam::Vec3;
-use mlt_bake::{bake_scene, BakeOptions, Silent};
+use mlt_bake::BakeOptions;
 use mlt_format::flatten::flatten;
 use mlt_format::links::LINK_DIM;
 use mlt_format::pull_push::pull_push_levels;
-use mlt_format::{BakedFile, WriteOptions};
+use mlt_format::BakedFile;
 use mlt_view::probe::{evaluate, Probe};
 use mlt_view::{CpuRelighter, Light, Relight};
 
-fn bake_to(path: &std::path::Path, spec: &str, opts: BakeOptions) {
-    let scene = mlt_scenes::load_scene(spec).unwrap();
-    let out = bake_scene(&scene, &opts, &Silent).unwrap();
-    mlt_format::file::write(path, &out.contents, WriteOptions::default()).unwrap();
+fn temp(name: &str) -> std::path::PathBuf {
+    common::temp_dir("view", name)
 }
 
-fn temp(name: &str) -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("mlt-view-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A small Cornell box bake (4 receiver levels, 40 coarse points) in a fresh directory `name`:
+/// the directory, the opened file, its basis and sender level count, and the scene's caster.
+fn small_cornell(
+    name: &str,
+    gather_rays: u32,
+) -> (
+    std::path::PathBuf,
+    BakedFile,
+    mlt_format::IndexedBasis,
+    usize,
+    Box<dyn mlt_scenes::RayCaster>,
+) {
+    let d = temp(name);
+    let f = d.join("cornell.mlt");
+    let spec = "builtin:cornell";
+    bake_to(
+        &f,
+        spec,
+        BakeOptions {
+            receiver_levels: Some(4),
+            coarse_count: Some(40),
+            gather_rays: Some(gather_rays),
+            ..Default::default()
+        },
+    );
+    let file = BakedFile::open(&f).unwrap();
+    let ib = file.basis().unwrap();
+    let tm = file.transport_meta().unwrap().unwrap();
+    let sender_levels = tm.params.sender_levels as usize;
+    let caster = mlt_scenes::load_scene(spec).unwrap().build_caster();
+    (d, file, ib, sender_levels, caster)
 }
 
 #[test]
@@ -201,28 +228,10 @@ fn bits(v: &[f32]) -> Vec<u32> {
 /// cost about 1e-3, relative); and the same bits for 1 and 2 threads.
 #[test]
 fn precomputed_stages_match_the_reference_stages() {
-    let d = temp("stages");
-    let f = d.join("cornell.mlt");
-    let spec = "builtin:cornell";
-    bake_to(
-        &f,
-        spec,
-        BakeOptions {
-            receiver_levels: Some(4),
-            coarse_count: Some(40),
-            gather_rays: Some(64),
-            ..Default::default()
-        },
-    );
-    let file = BakedFile::open(&f).unwrap();
-    let ib = file.basis().unwrap();
-    let tm = file.transport_meta().unwrap().unwrap();
-    let sender_levels = tm.params.sender_levels as usize;
+    let (d, file, ib, sender_levels, caster) = small_cornell("stages", 64);
     assert!(sender_levels >= 2, "{sender_levels}");
     let lb = file.links_bytes().unwrap().unwrap();
     let links = file.access_links(&lb).unwrap();
-    let scene = mlt_scenes::load_scene(spec).unwrap();
-    let caster = scene.build_caster();
     let light = Light::point(Vec3::new(0.278, 0.5, 0.28), [0.3, 0.25, 0.2]).unwrap();
 
     let run = |threads: usize| {
@@ -284,27 +293,9 @@ fn precomputed_stages_match_the_reference_stages() {
 /// change the direct light only in the penumbra, where they still give fractions.
 #[test]
 fn adaptive_shadow_rays_only_refine_the_penumbra() {
-    let d = temp("adaptive");
-    let f = d.join("cornell.mlt");
-    let spec = "builtin:cornell";
-    bake_to(
-        &f,
-        spec,
-        BakeOptions {
-            receiver_levels: Some(4),
-            coarse_count: Some(40),
-            gather_rays: Some(16),
-            ..Default::default()
-        },
-    );
-    let file = BakedFile::open(&f).unwrap();
-    let ib = file.basis().unwrap();
-    let tm = file.transport_meta().unwrap().unwrap();
-    let sender_levels = tm.params.sender_levels as usize;
+    let (d, file, ib, sender_levels, caster) = small_cornell("adaptive", 16);
     let lb = file.links_bytes().unwrap().unwrap();
     let links = file.access_links(&lb).unwrap();
-    let scene = mlt_scenes::load_scene(spec).unwrap();
-    let caster = scene.build_caster();
     // Low and to the side: the blocks cast long shadows with wide penumbrae on the floor.
     let light = Light::point(Vec3::new(0.1, 0.2, 0.3), [0.3, 0.25, 0.2]).unwrap();
     let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, 8);
