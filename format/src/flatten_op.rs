@@ -413,6 +413,12 @@ impl FlattenOp {
         self.entries.len()
     }
 
+    /// True when the storage order is the point order (the basis stores each level's points
+    /// in Morton order, as the bake does): products then need no reordering pass.
+    pub fn in_point_order(&self) -> bool {
+        self.identity
+    }
+
     /// The operator's arrays, for evaluating it elsewhere (the viewer's GPU compute pass):
     /// storage position `pos` computes flat point `order[pos]` as the sum over
     /// `e in row_offsets[pos]..row_offsets[pos + 1]` of

@@ -196,6 +196,13 @@ fn main() -> Result<()> {
     let mut relighter =
         CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, cli.shadow_rays);
     relighter.adaptive_shadows = !cli.all_shadow_rays;
+    if relighter.flatten_op().is_some() && !relighter.load_stats().points_in_morton_order {
+        eprintln!(
+            "note: {} stores its points in an older order; baking it again makes CPU flattening \
+             faster (about 40 % on Sponza)",
+            path.display()
+        );
+    }
     let (lo, hi) = (
         Vec3::from(meta.scene.bounds_min),
         Vec3::from(meta.scene.bounds_max),

@@ -60,6 +60,9 @@ pub struct LoadStats {
     pub links_bytes: usize,
     /// Sender points that cast shadow rays (the others are pulled from their children).
     pub direct_points: usize,
+    /// Whether the file stores each level's points in Morton order (bakes since 2026-11-21);
+    /// flattening is slower otherwise.
+    pub points_in_morton_order: bool,
 }
 
 /// The lighting of one frame.
@@ -173,6 +176,7 @@ impl<'a> CpuRelighter<'a> {
             pull_push_bytes: pull_push.bytes(),
             links_bytes: receiver_links.bytes(),
             direct_points: sample_used.iter().filter(|u| **u).count(),
+            points_in_morton_order: flatten_op.as_ref().is_some_and(FlattenOp::in_point_order),
         };
         CpuRelighter {
             ib,

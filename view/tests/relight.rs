@@ -248,6 +248,12 @@ fn precomputed_stages_match_the_reference_stages() {
     };
     let (frame, samples, stats) = run(2);
     assert!(stats.flatten_entries > 0 && stats.flatten_bytes >= 4 * stats.flatten_entries);
+    // The bake stores each level's points in Morton order, so the product needs no reordering.
+    assert!(stats.points_in_morton_order);
+    for l in 0..ib.levels() {
+        let order = mlt_format::morton::morton_order(&ib.basis.positions[ib.basis.level_range(l)]);
+        assert!(order.iter().enumerate().all(|(i, &j)| i == j as usize));
+    }
     let senders = ib.basis.level_offsets[sender_levels] as usize;
     assert!(stats.direct_points < senders, "{stats:?}");
 
