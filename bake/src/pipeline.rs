@@ -96,13 +96,6 @@ pub fn bake_scene(
     if !opts.basis_only {
         // Refuse bad transport parameters before spending time on the basis.
         check_params(&transport_params, params.levels)?;
-        if opts.shard.is_some() && (policy.auto || opts.bounce_tolerance.is_some()) {
-            // The shard section records the transport parameters only; `bake merge` runs
-            // the series with a fixed count and the default tolerance.
-            return Err(BakeError::InvalidParameter(
-                "--bounces auto and --bounce-tolerance are not supported with --shard yet; give a bounce count".into(),
-            ));
-        }
     }
     let viewpoint = scene.viewpoint;
     if !viewpoint.is_finite() {
@@ -267,6 +260,7 @@ pub fn bake_scene(
             (index, count),
             key,
             transport_params,
+            policy,
         ));
         file_key = mix64(key ^ mix64(((index as u64) << 32) | count as u64));
     } else if !opts.basis_only {

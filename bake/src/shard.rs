@@ -100,6 +100,7 @@ pub fn shard_section(
     (index, count): (u32, u32),
     base_key: u64,
     params: mlt_format::meta::TransportParams,
+    policy: BouncePolicy,
 ) -> ShardSection {
     let rays_per_receiver = params.gather_rays as u64;
     let levels = ib.levels();
@@ -108,6 +109,8 @@ pub fn shard_section(
         index,
         count,
         params,
+        auto_bounces: policy.auto,
+        bounce_tolerance: policy.tolerance,
         offsets: vec![0],
         receivers_refined: vec![0; levels],
         t_links_per_level: vec![0; levels],
@@ -159,7 +162,11 @@ pub fn merge(shards: Vec<BakeContents>, obs: &dyn Observer) -> Result<BakeConten
         let Some(s) = &c.shard else {
             return bad("a file is not a shard (no TSHD section)".into());
         };
-        if s.count as usize != count || s.base_key != s0.base_key || s.params != s0.params {
+        if s.count as usize != count
+            || s.base_key != s0.base_key
+            || s.params != s0.params
+            || (s.auto_bounces, s.bounce_tolerance) != (s0.auto_bounces, s0.bounce_tolerance)
+        {
             return bad(format!(
                 "shard {}/{} belongs to another bake (input key {:016x}, expected {:016x})",
                 s.index, s.count, s.base_key, s0.base_key
@@ -217,10 +224,16 @@ pub fn merge(shards: Vec<BakeContents>, obs: &dyn Observer) -> Result<BakeConten
         t,
         rstats,
         s0.params.clone(),
-        BouncePolicy::default(),
+        BouncePolicy {
+            auto: s0.auto_bounces,
+            tolerance: s0.bounce_tolerance,
+        },
         0.0,
         obs,
     )?;
+    for w in &out.warnings {
+        obs.warn(w);
+    }
     let mut transport = out.transport;
     transport.meta.timings = None;
     Ok(BakeContents {

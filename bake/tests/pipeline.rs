@@ -197,6 +197,72 @@ fn outputs_are_byte_identical_across_runs_and_thread_counts() {
     let _ = std::fs::remove_dir_all(&d);
 }
 
+/// With `--bounces auto` the shards carry the policy and the merge chooses the same count.
+#[test]
+fn merged_shards_with_auto_bounces_equal_the_single_bake() {
+    let d = temp("shards-auto");
+    let auto = ["--bounces", "auto:40", "--bounce-tolerance", "0.02"];
+    let full = d.join("full.mlt");
+    run(bake()
+        .arg("builtin:cornell")
+        .args(SMALL)
+        .args(auto)
+        .args(["-q", "-o"])
+        .arg(&full));
+    let mut files = Vec::new();
+    for i in 0..2 {
+        let f = d.join(format!("s{i}.mlt"));
+        run(bake()
+            .arg("builtin:cornell")
+            .args(SMALL)
+            .args(auto)
+            .args(["--shard", &format!("{i}/2"), "-q", "-o"])
+            .arg(&f));
+        files.push(f);
+    }
+    let merged = d.join("merged.mlt");
+    run(bake()
+        .arg("merge")
+        .args(&files)
+        .arg("-o")
+        .arg(&merged)
+        .arg("-q"));
+    assert!(
+        std::fs::read(&merged).unwrap() == std::fs::read(&full).unwrap(),
+        "the merge differs from the single bake"
+    );
+    let report = mlt_format::BakedFile::open(&merged)
+        .unwrap()
+        .transport_report()
+        .unwrap()
+        .unwrap();
+    assert_eq!(report.bounce_mode, "auto");
+    assert_eq!(report.bounce_cap, 40);
+    assert_eq!(report.bounce_tolerance, 0.02);
+    // A shard of a fixed-count bake does not merge with one of an automatic bake.
+    let fixed = d.join("fixed1.mlt");
+    run(bake()
+        .arg("builtin:cornell")
+        .args(SMALL)
+        .args(["--shard", "1/2", "-q", "-o"])
+        .arg(&fixed));
+    let r = bake()
+        .arg("merge")
+        .arg(&files[0])
+        .arg(&fixed)
+        .arg("-o")
+        .arg(d.join("x.mlt"))
+        .output()
+        .unwrap();
+    assert!(!r.status.success());
+    assert!(
+        String::from_utf8_lossy(&r.stderr).contains("another bake"),
+        "{}",
+        String::from_utf8_lossy(&r.stderr)
+    );
+    let _ = std::fs::remove_dir_all(&d);
+}
+
 #[test]
 fn merged_shards_equal_the_single_bake_for_one_two_and_three_shards() {
     let d = temp("shards");

@@ -32,8 +32,11 @@ use crate::error::FormatError;
 
 pub const MAGIC: [u8; 8] = *b"\x89MLTBK\r\n";
 pub const VERSION_MAJOR: u16 = 1;
-/// 1.3 added the optional `TRPT` section (error estimate, bounce choice, what was left out).
-pub const VERSION_MINOR: u16 = 3;
+/// 1.3 added the optional `TRPT` section (error estimate, bounce choice, what was left out);
+/// 1.4 the bounce policy to shard files' `TSHD` section (older shards are refused, other
+/// sections read as before). Since 1.4 the bake also stores each level's points in Morton
+/// order; readers do not rely on it.
+pub const VERSION_MINOR: u16 = 4;
 pub const FIXED_HEADER: usize = 64;
 pub const ENTRY_SIZE: usize = 32;
 pub const ALIGN: usize = 16;

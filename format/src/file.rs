@@ -296,6 +296,17 @@ impl BakedFile {
         if !self.has_section(TAG_SHARD) {
             return Ok(None);
         }
+        if (self.header.major, self.header.minor) < (1, 4) {
+            return Err(FormatError::BadSection {
+                path: self.path.clone(),
+                tag: "TSHD".into(),
+                detail: format!(
+                    "a shard of format {}.{}, whose layout this version no longer reads; compute \
+                     the shards again",
+                    self.header.major, self.header.minor
+                ),
+            });
+        }
         let s = self.section::<ShardSection>(TAG_SHARD)?;
         let b = self.section::<Basis>(TAG_BASIS)?;
         s.validate(b.len(), b.levels())

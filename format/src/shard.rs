@@ -12,6 +12,11 @@ pub struct ShardSection {
     pub index: u32,
     pub count: u32,
     pub params: TransportParams,
+    /// How `bake merge` runs the Neumann series (format 1.4 and later): `--bounces auto`
+    /// (with `params.bounces` the cap) or the fixed count, and the fraction of the indirect
+    /// light the series may leave out.
+    pub auto_bounces: bool,
+    pub bounce_tolerance: f64,
     /// Receivers this shard owns and processed, ascending.
     pub rows: Vec<u32>,
     /// `rows.len() + 1` offsets into `senders`.
@@ -51,6 +56,12 @@ impl ShardSection {
         }
         if self.receivers_refined.len() != levels || self.t_links_per_level.len() != levels {
             return Err("per-level counts do not match the levels".into());
+        }
+        if !(self.bounce_tolerance > 0.0 && self.bounce_tolerance < 1.0) {
+            return Err(format!(
+                "bounce tolerance {} is not a fraction in (0, 1)",
+                self.bounce_tolerance
+            ));
         }
         Ok(())
     }

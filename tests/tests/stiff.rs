@@ -238,14 +238,8 @@ fn box_albedo_0_99_converges_with_the_bounces_the_bake_chose() {
 }
 
 #[test]
-fn auto_bounces_are_refused_for_shards_with_a_reason() {
+fn bad_bounce_tolerances_are_refused_with_a_reason() {
     let scene = mlt_scenes::load_scene("builtin:sphere?albedo=0.9").unwrap();
-    let mut o = opts(true, None);
-    o.shard = Some((0, 2));
-    let e = mlt_bake::bake_scene(&scene, &o, &mlt_bake::Silent)
-        .err()
-        .expect("accepted");
-    assert!(e.to_string().contains("--shard"), "{e}");
     for tol in [0.0, 1.0, f64::NAN, -0.5] {
         let mut o = opts(true, None);
         o.bounce_tolerance = Some(tol);
