@@ -866,6 +866,7 @@ mod tests {
     fn kernels_agree() {
         let ib = plane_basis(5, 3);
         let op = FlattenOp::build(&ib, None).unwrap();
+        #[cfg_attr(not(target_arch = "x86_64"), allow(unused_mut))]
         let mut kernels = vec![Kernel::Portable];
         #[cfg(target_arch = "x86_64")]
         kernels.extend([Kernel::Avx2Fma].into_iter().filter(|k| k.supported()));
