@@ -330,7 +330,14 @@ impl FlattenOp {
         for (pos, &j) in order.iter().enumerate() {
             position[j as usize] = pos as u32;
         }
-        // Blocks of stored rows, each with its local columns numbered by first use.
+        // Blocks of stored rows, each with its local columns in ascending point order, so
+        // that gathering a block's table walks the coefficients forwards (with Morton-ordered
+        // points, in a few runs per level).
+        let row = |j: u32| {
+            let (blk, at, count) = row_at[j as usize];
+            let r = &blocks[blk];
+            (&r.ks[at..at + count], &r.qs[at..at + count])
+        };
         let mut local_of = vec![u32::MAX; n];
         let mut used = vec![false; n];
         let mut row_offsets = Vec::with_capacity(n + 1);
@@ -341,40 +348,35 @@ impl FlattenOp {
         for rows in order.chunks(BLOCK_ROWS) {
             let first = block_cols.len();
             for &j in rows {
-                let (blk, at, count) = row_at[j as usize];
-                let (ks, qs) = (&blocks[blk].ks, &blocks[blk].qs);
-                for e in at..at + count {
-                    let k = ks[e] as usize;
-                    if local_of[k] == u32::MAX {
-                        let local = block_cols.len() - first;
-                        if local >= MAX_LOCAL {
-                            return Err(FormatError::InvalidBasis(format!(
-                                "flattening operator: the {BLOCK_ROWS} points around point {j} \
-                                 read more than {MAX_LOCAL} basis functions"
-                            )));
-                        }
-                        local_of[k] = local as u32;
-                        block_cols.push(k as u32);
-                        used[k] = true;
+                for &k in row(j).0 {
+                    used[k as usize] = true;
+                    if local_of[k as usize] == u32::MAX {
+                        // In this block; numbered once all are known.
+                        local_of[k as usize] = 0;
+                        block_cols.push(k);
                     }
-                    entries.push(local_of[k] | (u32::from(qs[e]) << 16));
+                }
+            }
+            let cols = &mut block_cols[first..];
+            if cols.len() > MAX_LOCAL {
+                return Err(FormatError::InvalidBasis(format!(
+                    "flattening operator: the {BLOCK_ROWS} points around point {} read more \
+                     than {MAX_LOCAL} basis functions",
+                    rows[0]
+                )));
+            }
+            cols.sort_unstable();
+            for (local, &k) in cols.iter().enumerate() {
+                local_of[k as usize] = local as u32;
+            }
+            for &j in rows {
+                let (ks, qs) = row(j);
+                for (&k, &q) in ks.iter().zip(qs) {
+                    entries.push(local_of[k as usize] | (u32::from(q) << 16));
                 }
                 row_offsets.push(entries.len() as u32);
             }
-            // Local columns in ascending point order, so that gathering the table walks the
-            // coefficients forwards (with Morton-ordered points, in a few runs per level).
-            let entries_from = row_offsets[row_offsets.len() - 1 - rows.len()] as usize;
-            let unsorted = block_cols[first..].to_vec();
-            block_cols[first..].sort_unstable();
-            for (local, &k) in block_cols[first..].iter().enumerate() {
-                local_of[k as usize] = local as u32;
-            }
-            for e in &mut entries[entries_from..] {
-                let old = (*e & 0xffff) as usize;
-                let k = unsorted[old];
-                *e = (*e & 0xffff_0000) | local_of[k as usize];
-            }
-            for &k in &block_cols[first..] {
+            for &k in cols.iter() {
                 local_of[k as usize] = u32::MAX;
             }
             block_offsets.push(block_cols.len() as u32);

@@ -8,7 +8,7 @@
 //!    points over the tangent plane instead leaves curved surfaces and shadows them.) Half of
 //!    the rays, spread over the disk, go first; where they all agree the point is taken as
 //!    wholly lit or shadowed, and the other half is cast only in the penumbra (on Sponza this
-//!    saves 44 % of the rays). Points whose sample the pull-push replaces by their children's
+//!    saves 45 % of the rays). Points whose sample the pull-push replaces by their children's
 //!    average cast no rays.
 //! 2. pull-push projection onto the sender levels, `e = P-dagger E` (section 2.1), with the
 //!    weights precomputed ([`PullPushOp`]);

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::Parser;
-use mlt_view::compare::{compare_dirs, compare_probe_csv, format_metrics};
+use mlt_view::compare::{compare_dirs, compare_probe_csv, format_metrics, Metrics};
 
 /// Compares images (or probes) against the brute-force reference.
 #[derive(Parser)]
@@ -77,6 +77,17 @@ fn side_by_side(
     Ok(())
 }
 
+/// The text report: what was compared, then the indirect and final metrics.
+fn print_metrics(cli: &Cli, quantity: &str, indirect: &Metrics, final_image: &Metrics) {
+    println!(
+        "{} against the reference {} ({quantity}, luminance)",
+        cli.test.display(),
+        cli.reference.display()
+    );
+    println!("{}", format_metrics("indirect", indirect));
+    println!("{}", format_metrics("final", final_image));
+}
+
 fn main() -> Result<()> {
     let cli = Cli::parse();
     if cli.probes {
@@ -90,13 +101,7 @@ fn main() -> Result<()> {
         if cli.json {
             println!("{}", serde_json::to_string_pretty(&c)?);
         } else {
-            println!(
-                "{} against the reference {} (irradiance, luminance)",
-                cli.test.display(),
-                cli.reference.display()
-            );
-            println!("{}", format_metrics("indirect", &c.indirect));
-            println!("{}", format_metrics("final", &c.final_image));
+            print_metrics(&cli, "irradiance", &c.indirect, &c.final_image);
         }
         return Ok(());
     }
@@ -110,13 +115,7 @@ fn main() -> Result<()> {
     if cli.json {
         println!("{}", serde_json::to_string_pretty(&c)?);
     } else {
-        println!(
-            "{} against the reference {} (radiance, luminance)",
-            cli.test.display(),
-            cli.reference.display()
-        );
-        println!("{}", format_metrics("indirect", &c.indirect));
-        println!("{}", format_metrics("final", &c.final_image));
+        print_metrics(&cli, "radiance", &c.indirect, &c.final_image);
         if let Some(n) = &c.reference_noise {
             println!("reference noise (reference.json): {n}");
         }
