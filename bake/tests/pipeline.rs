@@ -197,6 +197,31 @@ fn outputs_are_byte_identical_across_runs_and_thread_counts() {
     let _ = std::fs::remove_dir_all(&d);
 }
 
+/// Bakes the small Cornell box with `extra` arguments as `n` shards (`{tag}s{i}of{n}.mlt` in
+/// `d`) and merges them, given last first (any order is allowed); returns the shard files in
+/// index order and the merged file.
+fn shards_merged(d: &Path, extra: &[&str], n: u32, tag: &str) -> (Vec<PathBuf>, PathBuf) {
+    let mut files = Vec::new();
+    for i in 0..n {
+        let f = d.join(format!("{tag}s{i}of{n}.mlt"));
+        run(bake()
+            .arg("builtin:cornell")
+            .args(SMALL)
+            .args(extra)
+            .args(["--shard", &format!("{i}/{n}"), "-q", "-o"])
+            .arg(&f));
+        files.push(f);
+    }
+    let merged = d.join(format!("{tag}merged{n}.mlt"));
+    run(bake()
+        .arg("merge")
+        .args(files.iter().rev())
+        .arg("-o")
+        .arg(&merged)
+        .arg("-q"));
+    (files, merged)
+}
+
 /// With `--bounces auto` the shards carry the policy and the merge chooses the same count.
 #[test]
 fn merged_shards_with_auto_bounces_equal_the_single_bake() {
@@ -209,24 +234,7 @@ fn merged_shards_with_auto_bounces_equal_the_single_bake() {
         .args(auto)
         .args(["-q", "-o"])
         .arg(&full));
-    let mut files = Vec::new();
-    for i in 0..2 {
-        let f = d.join(format!("s{i}.mlt"));
-        run(bake()
-            .arg("builtin:cornell")
-            .args(SMALL)
-            .args(auto)
-            .args(["--shard", &format!("{i}/2"), "-q", "-o"])
-            .arg(&f));
-        files.push(f);
-    }
-    let merged = d.join("merged.mlt");
-    run(bake()
-        .arg("merge")
-        .args(&files)
-        .arg("-o")
-        .arg(&merged)
-        .arg("-q"));
+    let (files, merged) = shards_merged(&d, &auto, 2, "auto");
     assert!(
         std::fs::read(&merged).unwrap() == std::fs::read(&full).unwrap(),
         "the merge differs from the single bake"
@@ -274,24 +282,7 @@ fn merged_shards_equal_the_single_bake_for_one_two_and_three_shards() {
         .arg(&full));
     let expected = std::fs::read(&full).unwrap();
     for n in 1..=3u32 {
-        let mut files = Vec::new();
-        for i in 0..n {
-            let f = d.join(format!("s{i}of{n}.mlt"));
-            run(bake()
-                .arg("builtin:cornell")
-                .args(SMALL)
-                .args(["--shard", &format!("{i}/{n}"), "-q", "-o"])
-                .arg(&f));
-            files.push(f);
-        }
-        files.reverse(); // any order
-        let merged = d.join(format!("merged{n}.mlt"));
-        run(bake()
-            .arg("merge")
-            .args(&files)
-            .arg("-o")
-            .arg(&merged)
-            .arg("-q"));
+        let (_, merged) = shards_merged(&d, &[], n, "");
         assert!(
             std::fs::read(&merged).unwrap() == expected,
             "{n} shards: the merge differs from the single bake"
