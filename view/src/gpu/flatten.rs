@@ -114,19 +114,8 @@ impl GpuFlatten {
             output,
             &params,
         ];
-        let entries: Vec<wgpu::BindGroupEntry<'_>> = buffers
-            .iter()
-            .enumerate()
-            .map(|(k, b)| wgpu::BindGroupEntry {
-                binding: k as u32,
-                resource: b.as_entire_binding(),
-            })
-            .collect();
-        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("flatten"),
-            layout: &layout,
-            entries: &entries,
-        });
+        let resources = buffers.map(|b| b.as_entire_binding());
+        let bind_group = super::pipeline::bind_group(device, "flatten", &layout, &resources);
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(GpuError::Validation(e.to_string()));
         }

@@ -1,0 +1,69 @@
+//! The splatting pass: every flat basis function that survives frustum culling (all points
+//! with their own radii and their level's priority factor: `mlt_format::flatten`) is drawn as
+//! a footprint bounding its support sphere; covered pixels accumulate, with additive blending,
+//! `f_j w_j` (Eq. 8), `f_j w_j c_j` and the unscaled `w_j` (which decides whether a pixel has
+//! support).
+
+use wgpu::ShaderStages as Stages;
+
+use crate::gpu::pipeline::{
+    additive, begin, bind_group, color_target, layout, module, pipeline, PipelineSpec, Slot, VS_FS,
+};
+use crate::gpu::scene_buffers::SceneBuffers;
+use crate::gpu::targets::{Target, Targets};
+
+const SPLAT: &str = include_str!("../shaders/splat.wgsl");
+
+pub struct SplatPass {
+    layout: wgpu::BindGroupLayout,
+    pipeline: wgpu::RenderPipeline,
+    /// The bindings of the current targets ([`SplatPass::attach`]).
+    bind_group: Option<wgpu::BindGroup>,
+}
+
+impl SplatPass {
+    /// Sums accumulated in `acc_format`.
+    pub fn new(device: &wgpu::Device, acc_format: wgpu::TextureFormat) -> SplatPass {
+        let slots = [
+            Slot::Uniform(VS_FS),
+            Slot::Storage(VS_FS),
+            Slot::Storage(Stages::FRAGMENT),
+            Slot::Storage(Stages::VERTEX),
+            Slot::Textures(2),
+        ];
+        let layout = layout(device, "splat", &slots);
+        let module = module(device, "splat", SPLAT);
+        let targets = [0; 3].map(|_| color_target(acc_format, Some(additive())));
+        let strip = wgpu::PrimitiveTopology::TriangleStrip;
+        let spec = PipelineSpec::procedural("splat", &layout, &module, strip, &targets);
+        SplatPass {
+            pipeline: pipeline(device, spec),
+            layout,
+            bind_group: None,
+        }
+    }
+
+    /// Binds the basis and the G-buffer of `t`.
+    pub fn attach(&mut self, device: &wgpu::Device, t: &Targets, scene: &SceneBuffers) {
+        let buffers = [
+            &scene.globals,
+            &scene.points,
+            &scene.coefficients,
+            &scene.visible,
+        ];
+        let mut resources: Vec<_> = buffers.iter().map(|b| b.as_entire_binding()).collect();
+        resources.extend([&t.position, &t.normal].map(Target::binding));
+        self.bind_group = Some(bind_group(device, "splat", &self.layout, &resources));
+    }
+
+    /// Clears the sums of `t` and splats the first `visible` points of the visible list.
+    pub fn encode(&self, enc: &mut wgpu::CommandEncoder, t: &Targets, visible: usize) {
+        let colors = [&t.acc[0], &t.acc[1], &t.acc[2]].map(Target::cleared);
+        let mut pass = begin(enc, "splat", &colors, None);
+        if let (Some(bg), true) = (&self.bind_group, visible > 0) {
+            pass.set_pipeline(&self.pipeline);
+            pass.set_bind_group(0, bg, &[]);
+            pass.draw(0..4, 0..visible as u32);
+        }
+    }
+}
