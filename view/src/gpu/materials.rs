@@ -41,7 +41,6 @@ pub fn material_draws(
         min_filter: wgpu::FilterMode::Linear,
         ..Default::default()
     });
-    let max_dim = device.limits().max_texture_dimension_2d;
     let white = albedo_texture(
         gpu,
         &mlt_scenes::Texture {
@@ -50,18 +49,7 @@ pub fn material_draws(
             texels: vec![[1.0; 3]],
         },
     );
-    let texture_views: Vec<Option<wgpu::TextureView>> = mesh
-        .textures
-        .iter()
-        .map(|t| {
-            (t.width > 0
-                && t.height > 0
-                && t.width <= max_dim
-                && t.height <= max_dim
-                && t.texels.len() == (t.width * t.height) as usize)
-                .then(|| albedo_texture(gpu, t))
-        })
-        .collect();
+    let texture_views = texture_views(gpu, mesh);
     mesh.draws
         .iter()
         .map(|d| {
@@ -88,6 +76,23 @@ pub fn material_draws(
                     ],
                 ),
             }
+        })
+        .collect()
+}
+
+/// The mesh's textures on the GPU, `None` for those empty, larger than the device allows or
+/// whose texel count does not match their size.
+fn texture_views(gpu: &Gpu, mesh: &GpuMesh) -> Vec<Option<wgpu::TextureView>> {
+    let max_dim = gpu.device.limits().max_texture_dimension_2d;
+    mesh.textures
+        .iter()
+        .map(|t| {
+            (t.width > 0
+                && t.height > 0
+                && t.width <= max_dim
+                && t.height <= max_dim
+                && t.texels.len() == (t.width * t.height) as usize)
+                .then(|| albedo_texture(gpu, t))
         })
         .collect()
 }

@@ -104,6 +104,39 @@ pub fn bind_group(
     })
 }
 
+/// The layout of a pass's bind group that holds render targets, and the group for the
+/// current ones (made again by [`TargetBinding::bind`] when the targets change).
+pub struct TargetBinding {
+    label: &'static str,
+    layout: wgpu::BindGroupLayout,
+    group: Option<wgpu::BindGroup>,
+}
+
+impl TargetBinding {
+    /// A layout of `slots`, nothing bound yet.
+    pub fn new(device: &wgpu::Device, label: &'static str, slots: &[Slot]) -> TargetBinding {
+        TargetBinding {
+            label,
+            layout: layout(device, label, slots),
+            group: None,
+        }
+    }
+
+    pub fn layout(&self) -> &wgpu::BindGroupLayout {
+        &self.layout
+    }
+
+    /// Binds `resources` (binding `k` is `resources[k]`), replacing the previous group.
+    pub fn bind(&mut self, device: &wgpu::Device, resources: &[wgpu::BindingResource<'_>]) {
+        self.group = Some(bind_group(device, self.label, &self.layout, resources));
+    }
+
+    /// The group, once bound.
+    pub fn group(&self) -> Option<&wgpu::BindGroup> {
+        self.group.as_ref()
+    }
+}
+
 /// A uniform buffer of `size` bytes, written with `Queue::write_buffer`.
 pub fn uniform_buffer(device: &wgpu::Device, label: &str, size: u64) -> wgpu::Buffer {
     device.create_buffer(&wgpu::BufferDescriptor {

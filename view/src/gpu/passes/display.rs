@@ -6,8 +6,8 @@ use bytemuck::{Pod, Zeroable};
 use serde::Serialize;
 
 use crate::gpu::pipeline::{
-    begin, bind_group, clear_attachment, color_target, layout, module, pipeline, uniform_buffer,
-    PerFormat, PipelineSpec, Slot, VS_FS,
+    begin, clear_attachment, color_target, module, pipeline, uniform_buffer, PerFormat,
+    PipelineSpec, Slot, TargetBinding, VS_FS,
 };
 use crate::gpu::targets::{Target, Targets};
 use crate::images::ToneMap;
@@ -75,29 +75,22 @@ struct DisplayUniform {
 }
 
 pub struct DisplayPass {
-    layout: wgpu::BindGroupLayout,
     module: wgpu::ShaderModule,
     pipelines: PerFormat,
     uniform: wgpu::Buffer,
-    /// The bindings of the current targets ([`DisplayPass::attach`]).
-    bind_group: Option<wgpu::BindGroup>,
+    binding: TargetBinding,
 }
 
 impl DisplayPass {
     pub fn new(device: &wgpu::Device) -> DisplayPass {
         // The parameters; direct, indirect and final radiance; the first and last sums.
-        let layout = layout(
-            device,
-            "display",
-            &[Slot::Uniform(VS_FS), Slot::Textures(5)],
-        );
+        let slots = [Slot::Uniform(VS_FS), Slot::Textures(5)];
         let size = std::mem::size_of::<DisplayUniform>() as u64;
         DisplayPass {
-            layout,
             module: module(device, "display", DISPLAY),
             pipelines: PerFormat::default(),
             uniform: uniform_buffer(device, "display", size),
-            bind_group: None,
+            binding: TargetBinding::new(device, "display", &slots),
         }
     }
 
@@ -106,7 +99,7 @@ impl DisplayPass {
         let inputs = [&t.direct, &t.indirect, &t.final_, &t.acc[0], &t.acc[2]];
         let mut resources = vec![self.uniform.as_entire_binding()];
         resources.extend(inputs.map(Target::binding));
-        self.bind_group = Some(bind_group(device, "display", &self.layout, &resources));
+        self.binding.bind(device, &resources);
     }
 
     /// Shows `mode` (the final image under the points view) tone mapped with `tone`, for a
@@ -139,7 +132,7 @@ impl DisplayPass {
 
     /// Clears `out` and draws into it.
     pub fn encode(&mut self, device: &wgpu::Device, enc: &mut wgpu::CommandEncoder, out: Output) {
-        let (layout, module) = (&self.layout, &self.module);
+        let (layout, module) = (self.binding.layout(), &self.module);
         let pipeline = self.pipelines.get(out.format, |format| {
             let targets = [color_target(format, None)];
             let list = wgpu::PrimitiveTopology::TriangleList;
@@ -147,7 +140,7 @@ impl DisplayPass {
             pipeline(device, spec)
         });
         let mut pass = begin(enc, "display", &[clear_attachment(out.view)], None);
-        if let Some(bg) = &self.bind_group {
+        if let Some(bg) = self.binding.group() {
             pass.set_pipeline(pipeline);
             pass.set_bind_group(0, bg, &[]);
             pass.draw(0..3, 0..1);

@@ -3,7 +3,7 @@
 //! linear direct, indirect and final radiance.
 
 use crate::gpu::pipeline::{
-    begin, bind_group, color_target, layout, module, pipeline, PipelineSpec, Slot, VS_FS,
+    begin, color_target, module, pipeline, PipelineSpec, Slot, TargetBinding, VS_FS,
 };
 use crate::gpu::scene_buffers::SceneBuffers;
 use crate::gpu::targets::{Target, Targets, RADIANCE_FORMAT};
@@ -13,10 +13,8 @@ use super::shadow::ShadowPass;
 const RESOLVE: &str = include_str!("../shaders/resolve.wgsl");
 
 pub struct ResolvePass {
-    layout: wgpu::BindGroupLayout,
     pipeline: wgpu::RenderPipeline,
-    /// The bindings of the current targets ([`ResolvePass::attach`]).
-    bind_group: Option<wgpu::BindGroup>,
+    binding: TargetBinding,
 }
 
 impl ResolvePass {
@@ -28,15 +26,14 @@ impl ResolvePass {
             Slot::DepthArray,
             Slot::Sampler(wgpu::SamplerBindingType::Comparison),
         ];
-        let layout = layout(device, "resolve", &slots);
+        let binding = TargetBinding::new(device, "resolve", &slots);
         let module = module(device, "resolve", RESOLVE);
         let targets = [0; 3].map(|_| color_target(RADIANCE_FORMAT, None));
         let list = wgpu::PrimitiveTopology::TriangleList;
-        let spec = PipelineSpec::procedural("resolve", &layout, &module, list, &targets);
+        let spec = PipelineSpec::procedural("resolve", binding.layout(), &module, list, &targets);
         ResolvePass {
             pipeline: pipeline(device, spec),
-            layout,
-            bind_group: None,
+            binding,
         }
     }
 
@@ -61,13 +58,13 @@ impl ResolvePass {
         resources.extend(inputs.map(Target::binding));
         resources.push(wgpu::BindingResource::TextureView(maps));
         resources.push(wgpu::BindingResource::Sampler(sampler));
-        self.bind_group = Some(bind_group(device, "resolve", &self.layout, &resources));
+        self.binding.bind(device, &resources);
     }
 
     pub fn encode(&self, enc: &mut wgpu::CommandEncoder, t: &Targets) {
         let colors = [&t.direct, &t.indirect, &t.final_].map(Target::cleared);
         let mut pass = begin(enc, "resolve", &colors, None);
-        if let Some(bg) = &self.bind_group {
+        if let Some(bg) = self.binding.group() {
             pass.set_pipeline(&self.pipeline);
             pass.set_bind_group(0, bg, &[]);
             pass.draw(0..3, 0..1);

@@ -68,34 +68,14 @@ impl ShadowPass {
         });
         let face_size = std::mem::size_of::<FaceUniform>() as u64;
         let face_buffer = uniform_buffer(device, "shadow faces", 6 * face_size);
-        let face_bgs = (0..6)
-            .map(|k| {
-                let face = wgpu::BufferBinding {
-                    buffer: &face_buffer,
-                    offset: k * face_size,
-                    size: wgpu::BufferSize::new(FACE_BINDING_SIZE),
-                };
-                let resource = wgpu::BindingResource::Buffer(face);
-                bind_group(device, "shadow face", &face_layout, &[resource])
-            })
-            .collect();
-        let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
-            label: Some("shadow"),
-            address_mode_u: wgpu::AddressMode::ClampToEdge,
-            address_mode_v: wgpu::AddressMode::ClampToEdge,
-            mag_filter: wgpu::FilterMode::Linear,
-            min_filter: wgpu::FilterMode::Linear,
-            compare: Some(wgpu::CompareFunction::LessEqual),
-            ..Default::default()
-        });
         ShadowPass {
             pipeline,
             resolution,
             layer_views,
             array_view,
-            sampler,
+            sampler: comparison_sampler(device),
+            face_bgs: face_bind_groups(device, &face_layout, &face_buffer, face_size),
             face_buffer,
-            face_bgs,
             faces: None,
         }
     }
@@ -154,6 +134,40 @@ impl ShadowPass {
             }
         }
     }
+}
+
+/// One bind group per face: its slice of the face buffer.
+fn face_bind_groups(
+    device: &wgpu::Device,
+    layout: &wgpu::BindGroupLayout,
+    buffer: &wgpu::Buffer,
+    face_size: u64,
+) -> Vec<wgpu::BindGroup> {
+    (0..6)
+        .map(|k| {
+            let face = wgpu::BufferBinding {
+                buffer,
+                offset: k * face_size,
+                size: wgpu::BufferSize::new(FACE_BINDING_SIZE),
+            };
+            let resource = wgpu::BindingResource::Buffer(face);
+            bind_group(device, "shadow face", layout, &[resource])
+        })
+        .collect()
+}
+
+/// Comparison sampling, filtered bilinearly: the weighted fraction of the four nearest texels
+/// whose stored distance is at least the compared one (lit).
+fn comparison_sampler(device: &wgpu::Device) -> wgpu::Sampler {
+    device.create_sampler(&wgpu::SamplerDescriptor {
+        label: Some("shadow"),
+        address_mode_u: wgpu::AddressMode::ClampToEdge,
+        address_mode_v: wgpu::AddressMode::ClampToEdge,
+        mag_filter: wgpu::FilterMode::Linear,
+        min_filter: wgpu::FilterMode::Linear,
+        compare: Some(wgpu::CompareFunction::LessEqual),
+        ..Default::default()
+    })
 }
 
 fn shadow_texture(device: &wgpu::Device, resolution: u32) -> wgpu::Texture {

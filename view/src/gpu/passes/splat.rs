@@ -7,7 +7,7 @@
 use wgpu::ShaderStages as Stages;
 
 use crate::gpu::pipeline::{
-    additive, begin, bind_group, color_target, layout, module, pipeline, PipelineSpec, Slot, VS_FS,
+    additive, begin, color_target, module, pipeline, PipelineSpec, Slot, TargetBinding, VS_FS,
 };
 use crate::gpu::scene_buffers::SceneBuffers;
 use crate::gpu::targets::{Target, Targets};
@@ -15,10 +15,8 @@ use crate::gpu::targets::{Target, Targets};
 const SPLAT: &str = include_str!("../shaders/splat.wgsl");
 
 pub struct SplatPass {
-    layout: wgpu::BindGroupLayout,
     pipeline: wgpu::RenderPipeline,
-    /// The bindings of the current targets ([`SplatPass::attach`]).
-    bind_group: Option<wgpu::BindGroup>,
+    binding: TargetBinding,
 }
 
 impl SplatPass {
@@ -31,15 +29,14 @@ impl SplatPass {
             Slot::Storage(Stages::VERTEX),
             Slot::Textures(2),
         ];
-        let layout = layout(device, "splat", &slots);
+        let binding = TargetBinding::new(device, "splat", &slots);
         let module = module(device, "splat", SPLAT);
         let targets = [0; 3].map(|_| color_target(acc_format, Some(additive())));
         let strip = wgpu::PrimitiveTopology::TriangleStrip;
-        let spec = PipelineSpec::procedural("splat", &layout, &module, strip, &targets);
+        let spec = PipelineSpec::procedural("splat", binding.layout(), &module, strip, &targets);
         SplatPass {
             pipeline: pipeline(device, spec),
-            layout,
-            bind_group: None,
+            binding,
         }
     }
 
@@ -53,14 +50,14 @@ impl SplatPass {
         ];
         let mut resources: Vec<_> = buffers.iter().map(|b| b.as_entire_binding()).collect();
         resources.extend([&t.position, &t.normal].map(Target::binding));
-        self.bind_group = Some(bind_group(device, "splat", &self.layout, &resources));
+        self.binding.bind(device, &resources);
     }
 
     /// Clears the sums of `t` and splats the first `visible` points of the visible list.
     pub fn encode(&self, enc: &mut wgpu::CommandEncoder, t: &Targets, visible: usize) {
         let colors = [&t.acc[0], &t.acc[1], &t.acc[2]].map(Target::cleared);
         let mut pass = begin(enc, "splat", &colors, None);
-        if let (Some(bg), true) = (&self.bind_group, visible > 0) {
+        if let (Some(bg), true) = (self.binding.group(), visible > 0) {
             pass.set_pipeline(&self.pipeline);
             pass.set_bind_group(0, bg, &[]);
             pass.draw(0..4, 0..visible as u32);
