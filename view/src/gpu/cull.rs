@@ -107,7 +107,7 @@ mod tests {
             48,
         )
         .unwrap();
-        let f = Frustum::from_view_proj(&(cam.projection_matrix(0.1, 50.0) * cam.view_matrix()));
+        let f = Frustum::from_view_proj(&cam.reversed_view_proj((0.1, 50.0)));
         let mut out = Vec::new();
         for radius in [0.25, f32::INFINITY] {
             visible_points(&ib, &f, radius, &mut out);
