@@ -23,6 +23,7 @@ use winit::keyboard::{KeyCode, PhysicalKey};
 use winit::window::{Window, WindowId};
 
 use crate::camera::Camera;
+use crate::frame::{FrameDriver, Redraw};
 use crate::gpu::mesh::GpuMesh;
 use crate::gpu::{Gpu, Renderer, ViewMode};
 use crate::images::{luminance, ToneMap};
@@ -59,11 +60,11 @@ pub fn run(setup: WindowSetup<'_>) -> Result<()> {
     if !display_available() {
         bail!(
             "no display: DISPLAY is not set, so no window can open. Render to files instead with \
-             --headless --out DIR (or start an X server, e.g. xvfb-run)"
+             `view render FILE --out DIR` (or start an X server, e.g. xvfb-run)"
         );
     }
     let event_loop = EventLoop::new().map_err(|e| {
-        anyhow!("cannot open the display ({e}); render to files instead with --headless --out DIR")
+        anyhow!("cannot open the display ({e}); render to files instead with `view render FILE --out DIR`")
     })?;
     event_loop.set_control_flow(ControlFlow::Poll);
     let mut app = App {
@@ -162,7 +163,13 @@ impl App<'_> {
         let mesh = GpuMesh::from_scene(self.setup.scene);
         let mut renderer = Renderer::new(&gpu, &mesh, &self.setup.ib.basis, self.setup.shadow_res)?;
         if self.setup.gpu_flatten.unwrap_or(!gpu.is_software()) {
-            crate::headless::flatten_on_gpu(&gpu, &mut renderer, &mut *self.setup.relighter)?;
+            FrameDriver {
+                gpu: &gpu,
+                renderer: &mut renderer,
+                relighter: &mut *self.setup.relighter,
+                ib: self.setup.ib,
+            }
+            .flatten_on_gpu()?;
         }
         let mut camera = cam;
         camera.width = config.width;
@@ -212,10 +219,16 @@ impl App<'_> {
         s.last_tick = now;
         move_with_keys(s, dt);
 
-        let frame = self.setup.relighter.relight(&s.light);
-        if !frame.reused {
-            crate::headless::upload(&s.gpu, &s.renderer, frame, false)?;
-            s.renderer.invalidate();
+        let mut driver = FrameDriver {
+            gpu: &s.gpu,
+            renderer: &mut s.renderer,
+            relighter: &mut *self.setup.relighter,
+            ib: self.setup.ib,
+        };
+        let drawn = driver.draw(&s.camera, &s.light, Redraw::WhenRelit, false)?;
+        let times = drawn.gpu;
+        if !drawn.frame.reused {
+            let frame = drawn.frame;
             s.stage = frame.times;
             s.flat_max = max_irradiance(if frame.flat.is_empty() {
                 &frame.i
@@ -224,9 +237,6 @@ impl App<'_> {
             });
             s.tone_dirty = true;
         }
-        let times = s
-            .renderer
-            .render(&s.gpu, self.setup.ib, &s.camera, &s.light, false)?;
         if times.gbuffer_ms > 0.0 || times.cull_ms > 0.0 {
             s.tone_dirty = true;
         }
