@@ -111,7 +111,7 @@ mod tests {
             assert_eq!(with_default_command(args(given)), args(given));
         }
         let cli = Cli::try_parse_from(with_default_command(args(&["view", "a.mlt"]))).unwrap();
-        assert!(matches!(cli.command, Command::Open(ref o) if o.file.as_os_str() == "a.mlt"));
+        assert!(matches!(cli.command, Command::Open(ref o) if o.baked.file.as_os_str() == "a.mlt"));
     }
 
     #[test]

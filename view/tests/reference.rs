@@ -32,6 +32,20 @@ fn inside_camera(w: u32, h: u32) -> Camera {
     .unwrap()
 }
 
+/// The scene's own camera at `w` x `h` pixels.
+fn scene_camera(scene: &mlt_scenes::Scene, w: u32, h: u32) -> Camera {
+    let c = &scene.camera;
+    Camera::new(
+        c.position.into(),
+        c.target.into(),
+        c.up.into(),
+        c.fovy_deg,
+        w,
+        h,
+    )
+    .unwrap()
+}
+
 fn sphere(albedo: f32) -> Box<dyn mlt_scenes::RayCaster> {
     mlt_scenes::load_scene(&format!("builtin:sphere?albedo={albedo}&radius=2"))
         .unwrap()
@@ -232,16 +246,7 @@ fn compare_reports_zero_for_identical_dirs_and_the_scale_of_a_scaled_image() {
     // The Cornell box: a real mesh, shadows and colour (also checks the tracer on a BVH).
     let scene = mlt_scenes::load_scene("builtin:cornell").unwrap();
     let caster = scene.build_caster();
-    let c = &scene.camera;
-    let camera = Camera::new(
-        c.position.into(),
-        c.target.into(),
-        c.up.into(),
-        c.fovy_deg,
-        20,
-        20,
-    )
-    .unwrap();
+    let camera = scene_camera(&scene, 20, 20);
     let light = Light::point(scene.light.position.into(), scene.light.intensity).unwrap();
     let r = render_reference(caster.as_ref(), &camera, &light, 8, 1).unwrap();
     assert!(r.indirect.all_finite() && r.final_image.all_finite());
@@ -348,16 +353,7 @@ fn reference_cli_renders_the_scene_with_its_overrides() {
         .unwrap();
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
     let scene = mlt_scenes::load_scene("builtin:cornell").unwrap();
-    let c = &scene.camera;
-    let camera = Camera::new(
-        c.position.into(),
-        c.target.into(),
-        c.up.into(),
-        c.fovy_deg,
-        12,
-        10,
-    )
-    .unwrap();
+    let camera = scene_camera(&scene, 12, 10);
     let light = Light::point(Vec3::new(0.3, 0.45, 0.3), scene.light.intensity).unwrap();
     let lib = render_reference(scene.build_caster().as_ref(), &camera, &light, 4, 1).unwrap();
     let cli = RgbImage::read_exr(&out.join("reference_final.exr")).unwrap();

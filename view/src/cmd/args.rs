@@ -8,6 +8,17 @@ use glam::Vec3;
 use mlt_view::camera::parse_vec3;
 use mlt_view::gpu::Gpu;
 
+/// A baked file to view, with the setting to view it in and how to relight it.
+#[derive(Args, Clone, Debug)]
+pub struct BakedArgs {
+    /// A file written by `bake`.
+    pub file: PathBuf,
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    #[command(flatten)]
+    pub relight: RelightArgs,
+}
+
 /// The scene, camera and light, each defaulting to the file's (or the scene's).
 #[derive(Args, Clone, Debug, Default)]
 pub struct SceneArgs {

@@ -3,7 +3,7 @@
 //! over lit pixels and ratio of means, for the indirect and final images, with the reference's
 //! noise. `view compare --probes REF.csv TEST.csv` does the same for probe irradiances.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::Args;
@@ -32,14 +32,16 @@ pub struct CompareArgs {
 }
 
 pub fn run(cli: &CompareArgs) -> Result<()> {
+    let what = if cli.probes { "probes " } else { "" };
+    let context = || {
+        format!(
+            "comparing {what}{} against {}",
+            cli.test.display(),
+            cli.reference.display()
+        )
+    };
     if cli.probes {
-        let c = compare_probe_csv(&cli.reference, &cli.test).with_context(|| {
-            format!(
-                "comparing probes {} against {}",
-                cli.test.display(),
-                cli.reference.display()
-            )
-        })?;
+        let c = compare_probe_csv(&cli.reference, &cli.test).with_context(context)?;
         if cli.json {
             println!("{}", serde_json::to_string_pretty(&c)?);
         } else {
@@ -47,13 +49,7 @@ pub fn run(cli: &CompareArgs) -> Result<()> {
         }
         return Ok(());
     }
-    let c = compare_dirs(&cli.reference, &cli.test).with_context(|| {
-        format!(
-            "comparing {} against {}",
-            cli.test.display(),
-            cli.reference.display()
-        )
-    })?;
+    let c = compare_dirs(&cli.reference, &cli.test).with_context(context)?;
     if cli.json {
         println!("{}", serde_json::to_string_pretty(&c)?);
     } else {
@@ -69,11 +65,7 @@ pub fn run(cli: &CompareArgs) -> Result<()> {
 }
 
 /// `[test | reference | |test - reference|]`, tone-mapped alike.
-fn side_by_side(
-    reference: &std::path::Path,
-    test: &std::path::Path,
-    out: &std::path::Path,
-) -> Result<()> {
+fn side_by_side(reference: &Path, test: &Path, out: &Path) -> Result<()> {
     use mlt_view::images::{linear_to_srgb, luminance, RgbImage, ToneMap};
     let r = RgbImage::read_exr(&reference.join("reference_indirect.exr"))?;
     let t = RgbImage::read_exr(&test.join("indirect.exr"))

@@ -11,7 +11,7 @@ use mlt_format::{BakedFile, IndexedBasis, Meta};
 use mlt_scenes::{LightKind, RayCaster, Scene, SpotFalloff};
 use mlt_view::{Camera, CpuRelighter, Light};
 
-use crate::cmd::args::{RelightArgs, SceneArgs};
+use crate::cmd::args::{BakedArgs, SceneArgs};
 
 /// The scene with the camera and light to view it by.
 pub struct Setting {
@@ -48,14 +48,10 @@ impl Viewing<'_> {
     }
 }
 
-/// Opens the baked file at `path` with its transport operator and links, loads its scene,
+/// Opens the baked file with its transport operator and links, loads its scene,
 /// applies the overrides and hands the result to `f`.
-pub fn with_viewing<T>(
-    path: &Path,
-    scene_args: &SceneArgs,
-    relight: &RelightArgs,
-    f: impl FnOnce(Viewing<'_>) -> Result<T>,
-) -> Result<T> {
+pub fn with_viewing<T>(args: &BakedArgs, f: impl FnOnce(Viewing<'_>) -> Result<T>) -> Result<T> {
+    let (path, relight) = (args.file.as_path(), &args.relight);
     let file = BakedFile::open(path).with_context(|| format!("opening {}", path.display()))?;
     let meta = file
         .meta()
@@ -73,7 +69,7 @@ pub fn with_viewing<T>(
         .links_bytes()?
         .with_context(|| format!("{}: no links section", path.display()))?;
     let links = file.access_links(&link_bytes)?;
-    let setting = file_setting(path, &meta, scene_args)?;
+    let setting = file_setting(path, &meta, &args.scene)?;
     let caster = setting.scene.build_caster();
 
     let sender_levels = tm.params.sender_levels as usize;

@@ -5,18 +5,14 @@ use std::path::PathBuf;
 use anyhow::Result;
 use clap::Args;
 
-use crate::cmd::args::{GpuArgs, RelightArgs, SceneArgs};
+use crate::cmd::args::{BakedArgs, GpuArgs};
 use crate::cmd::load::with_viewing;
 
 /// Opens a window with a free camera and a movable light.
 #[derive(Args, Debug)]
 pub struct OpenArgs {
-    /// A file written by `bake`.
-    pub file: PathBuf,
     #[command(flatten)]
-    pub scene: SceneArgs,
-    #[command(flatten)]
-    pub relight: RelightArgs,
+    pub baked: BakedArgs,
     #[command(flatten)]
     pub gpu: GpuArgs,
     /// For scripts and tests: after N frames save a screenshot of every view
@@ -29,7 +25,7 @@ pub struct OpenArgs {
 }
 
 pub fn run(args: &OpenArgs) -> Result<()> {
-    with_viewing(&args.file, &args.scene, &args.relight, |mut v| {
+    with_viewing(&args.baked, |mut v| {
         mlt_view::window::run(mlt_view::window::WindowSetup {
             title: format!("view {}", v.path.display()),
             scene: v.scene,

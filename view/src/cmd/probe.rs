@@ -1,27 +1,21 @@
 //! `view probe FILE --probe IN.csv --probe-out OUT.csv`: the relit irradiance at given
 //! surface points.
 
-use std::path::PathBuf;
-
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use mlt_view::probe::{evaluate, parse_probes, to_csv};
 use mlt_view::Relight;
 
-use crate::cmd::args::{ProbeArgs, RelightArgs, SceneArgs};
+use crate::cmd::args::{BakedArgs, ProbeArgs};
 use crate::cmd::load::with_viewing;
 
 /// Writes the irradiance at probe points.
 #[derive(Args, Debug)]
 pub struct ProbeCmdArgs {
-    /// A file written by `bake`.
-    pub file: PathBuf,
+    #[command(flatten)]
+    pub baked: BakedArgs,
     #[command(flatten)]
     pub probes: ProbeArgs,
-    #[command(flatten)]
-    pub scene: SceneArgs,
-    #[command(flatten)]
-    pub relight: RelightArgs,
 }
 
 pub fn run(args: &ProbeCmdArgs) -> Result<()> {
@@ -29,7 +23,7 @@ pub fn run(args: &ProbeCmdArgs) -> Result<()> {
     let text =
         std::fs::read_to_string(input).with_context(|| format!("reading {}", input.display()))?;
     let probes = parse_probes(input, &text)?;
-    with_viewing(&args.file, &args.scene, &args.relight, |mut v| {
+    with_viewing(&args.baked, |mut v| {
         let frame = v.relighter.relight(&v.light);
         let values: Vec<_> = probes
             .iter()

@@ -15,21 +15,17 @@ use mlt_view::headless::{self, Timings};
 use mlt_view::reference::{render_reference, write_reference};
 use mlt_view::relight::LoadStats;
 
-use crate::cmd::args::{GpuArgs, RelightArgs, SceneArgs};
+use crate::cmd::args::{BakedArgs, GpuArgs};
 use crate::cmd::load::{with_viewing, Viewing};
 
 /// Renders images without a window.
 #[derive(Args, Debug)]
 pub struct RenderArgs {
-    /// A file written by `bake`.
-    pub file: PathBuf,
+    #[command(flatten)]
+    pub baked: BakedArgs,
     /// Output directory.
     #[arg(long)]
     pub out: PathBuf,
-    #[command(flatten)]
-    pub scene: SceneArgs,
-    #[command(flatten)]
-    pub relight: RelightArgs,
     #[command(flatten)]
     pub gpu: GpuArgs,
     /// Relight and render N frames with the light moving on a circle and report per-stage
@@ -47,7 +43,7 @@ pub struct RenderArgs {
 }
 
 pub fn run(args: &RenderArgs) -> Result<()> {
-    with_viewing(&args.file, &args.scene, &args.relight, |mut v| {
+    with_viewing(&args.baked, |mut v| {
         let timings = images(args, &mut v)?;
         if let Some(spp) = args.reference {
             reference(args, &v, spp)?;

@@ -8,28 +8,24 @@ use clap::Args;
 use mlt_view::headless::{light_on_path, median};
 use mlt_view::Relight;
 
-use crate::cmd::args::{RelightArgs, SceneArgs};
+use crate::cmd::args::BakedArgs;
 use crate::cmd::load::{with_viewing, Viewing};
 
 /// Times the CPU relighting stages.
 #[derive(Args, Debug)]
 pub struct TimingsArgs {
-    /// A file written by `bake`.
-    pub file: PathBuf,
+    #[command(flatten)]
+    pub baked: BakedArgs,
     /// Frames to relight.
     #[arg(long, default_value_t = 1)]
     pub frames: u32,
     /// Write the timings (JSON) here instead of stdout.
     #[arg(long)]
     pub timings_out: Option<PathBuf>,
-    #[command(flatten)]
-    pub scene: SceneArgs,
-    #[command(flatten)]
-    pub relight: RelightArgs,
 }
 
 pub fn run(args: &TimingsArgs) -> Result<()> {
-    with_viewing(&args.file, &args.scene, &args.relight, |mut v| {
+    with_viewing(&args.baked, |mut v| {
         let json = relight_frames(args, &mut v);
         match &args.timings_out {
             Some(out) => {
@@ -70,8 +66,8 @@ fn relight_frames(args: &TimingsArgs, v: &mut Viewing<'_>) -> serde_json::Value 
         "file": v.path.display().to_string(),
         "frames": n,
         "moving_light": true,
-        "shadow_rays": args.relight.shadow_rays,
-        "adaptive_shadow_rays": !args.relight.all_shadow_rays,
+        "shadow_rays": args.baked.relight.shadow_rays,
+        "adaptive_shadow_rays": !args.baked.relight.all_shadow_rays,
         "threads": rayon::current_num_threads(),
         "median_ms": {"direct": d, "project": p, "transport": s, "flatten": fl, "total": d + p + s + fl},
         "median_senders_used": median(senders),
