@@ -146,6 +146,7 @@ fn cornell_box_bleeds_red_and_green_onto_the_white_back_wall() {
     std::fs::write(&input, csv).unwrap();
     let output = d.join("out.csv");
     let r = Command::new(env!("CARGO_BIN_EXE_view"))
+        .arg("probe")
         .arg(&f)
         .arg("--probe")
         .arg(&input)
@@ -184,6 +185,7 @@ fn cornell_box_bleeds_red_and_green_onto_the_white_back_wall() {
     // Timings with a moving light, and the errors a user can make.
     let t = d.join("t.json");
     let r = Command::new(env!("CARGO_BIN_EXE_view"))
+        .arg("timings")
         .arg(&f)
         .args(["--frames", "3", "--timings-out"])
         .arg(&t)
@@ -197,6 +199,7 @@ fn cornell_box_bleeds_red_and_green_onto_the_white_back_wall() {
     }
     std::fs::write(&input, "1,2,3,0,0,1\n1,2,3\n").unwrap();
     let r = Command::new(env!("CARGO_BIN_EXE_view"))
+        .arg("probe")
         .arg(&f)
         .arg("--probe")
         .arg(&input)
@@ -206,7 +209,7 @@ fn cornell_box_bleeds_red_and_green_onto_the_white_back_wall() {
         .unwrap();
     assert!(!r.status.success());
     assert!(String::from_utf8_lossy(&r.stderr).contains("in.csv:2"));
-    // No window without a display: the viewer says so and points to --headless.
+    // No window without a display: the viewer says so and points to `view render`.
     let r = Command::new(env!("CARGO_BIN_EXE_view"))
         .arg(&f)
         .env_remove("DISPLAY")
@@ -214,7 +217,7 @@ fn cornell_box_bleeds_red_and_green_onto_the_white_back_wall() {
         .output()
         .unwrap();
     assert!(!r.status.success());
-    assert!(String::from_utf8_lossy(&r.stderr).contains("--headless"));
+    assert!(String::from_utf8_lossy(&r.stderr).contains("view render"));
     let _ = std::fs::remove_dir_all(&d);
 }
 
