@@ -5,14 +5,13 @@ use std::path::Path;
 
 use glam::Vec3;
 use mlt_format::IndexedBasis;
+use mlt_relight::{Light, Relight, StageTimes};
 use serde::Serialize;
 
 use crate::camera::Camera;
 use crate::gpu::context::AdapterReport;
 use crate::gpu::{Buffers, Gpu, GpuError, RenderTimes, Renderer};
 use crate::images::ImageError;
-use crate::light::Light;
-use crate::relight::{Relight, StageTimes};
 
 /// Errors of a headless render.
 #[derive(Debug, thiserror::Error)]
@@ -46,7 +45,7 @@ pub struct Timings {
     pub adapter: AdapterReport,
     pub accumulation_format: String,
     /// The relighter's one-time set-up (precomputed operators), when it reports one.
-    pub load: Option<crate::relight::LoadStats>,
+    pub load: Option<mlt_relight::LoadStats>,
 }
 
 #[derive(Clone, Debug, Default, Serialize)]
@@ -93,7 +92,7 @@ pub fn light_on_path(light: &Light, radius: f32, f: u32, n: u32) -> Light {
 pub fn upload(
     gpu: &Gpu,
     renderer: &Renderer,
-    frame: &crate::relight::Frame,
+    frame: &mlt_relight::Frame,
     timed: bool,
 ) -> Result<f64, GpuError> {
     if renderer.flattens_on_gpu() && frame.flat.is_empty() {

@@ -43,12 +43,12 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use glam::Vec3;
+use mlt_relight::Light;
 use mlt_scenes::RayCaster;
 use rayon::prelude::*;
 
 use crate::camera::Camera;
 use crate::images::{luminance, ImageError, RgbImage};
-use crate::light::Light;
 use crate::probe::Probe;
 
 /// Errors of the reference renderer.

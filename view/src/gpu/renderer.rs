@@ -17,9 +17,9 @@ use std::time::Instant;
 use bytemuck::{Pod, Zeroable};
 use glam::{Mat4, Vec3};
 use mlt_format::flatten::flat_level_factor;
-use mlt_format::flatten_op::FlattenOp;
 use mlt_format::links::LINK_DIM;
 use mlt_format::{Basis, IndexedBasis};
+use mlt_relight::{FlattenOp, Light};
 use serde::Serialize;
 use wgpu::util::DeviceExt;
 
@@ -31,7 +31,6 @@ use super::readback::read_rgba32f;
 use super::uniforms::{FaceUniform, Globals, ShadowFaces};
 use crate::camera::Camera;
 use crate::images::{RgbImage, ToneMap};
-use crate::light::Light;
 
 const COMMON: &str = include_str!("shaders/common.wgsl");
 const GBUFFER: &str = include_str!("shaders/gbuffer.wgsl");
