@@ -5,8 +5,7 @@ use mlt_format::IndexedBasis;
 
 use crate::camera::Camera;
 use crate::gpu::{Gpu, GpuError, RenderTimes, Renderer};
-use crate::light::Light;
-use crate::relight::{Frame, Relight};
+use mlt_relight::{Frame, Light, Relight};
 
 /// What a frame hands to the renderer and redraws.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

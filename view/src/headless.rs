@@ -4,6 +4,7 @@
 use std::path::Path;
 
 use glam::Vec3;
+use mlt_relight::{Light, StageTimes};
 use serde::Serialize;
 
 use crate::camera::Camera;
@@ -11,8 +12,6 @@ use crate::frame::{FrameDriver, Redraw};
 use crate::gpu::context::AdapterReport;
 use crate::gpu::{Buffers, GpuError, RenderTimes};
 use crate::images::ImageError;
-use crate::light::Light;
-use crate::relight::StageTimes;
 
 /// Errors of a headless render.
 #[derive(Debug, thiserror::Error)]
@@ -46,7 +45,7 @@ pub struct Timings {
     pub adapter: AdapterReport,
     pub accumulation_format: String,
     /// The relighter's one-time set-up (precomputed operators), when it reports one.
-    pub load: Option<crate::relight::LoadStats>,
+    pub load: Option<mlt_relight::LoadStats>,
 }
 
 #[derive(Clone, Debug, Default, Serialize)]

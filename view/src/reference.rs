@@ -1,6 +1,6 @@
 //! An independent brute-force reference: Monte Carlo path tracing of the same scene, light and
 //! camera as the viewer, using nothing of the meshless basis (only the scene's [`RayCaster`]
-//! and the light model of [`crate::light`]). It exists to measure the viewer's error against.
+//! and the light model of [`mlt_relight::light`]). It exists to measure the viewer's error against.
 //!
 //! # What it computes
 //!
@@ -43,12 +43,12 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use glam::Vec3;
+use mlt_relight::Light;
 use mlt_scenes::RayCaster;
 use rayon::prelude::*;
 
 use crate::camera::Camera;
 use crate::images::{luminance, ImageError, RgbImage};
-use crate::light::Light;
 use crate::probe::Probe;
 
 /// Errors of the reference renderer.

@@ -15,6 +15,7 @@ use std::time::Instant;
 use anyhow::{anyhow, bail, Context, Result};
 use glam::{Quat, Vec3};
 use mlt_format::IndexedBasis;
+use mlt_relight::{Light, Relight, StageTimes};
 use mlt_scenes::Scene;
 use winit::application::ApplicationHandler;
 use winit::event::{ElementState, MouseButton, WindowEvent};
@@ -27,8 +28,6 @@ use crate::frame::{FrameDriver, Redraw};
 use crate::gpu::mesh::GpuMesh;
 use crate::gpu::{Gpu, Renderer, ViewMode};
 use crate::images::{luminance, ToneMap};
-use crate::light::Light;
-use crate::relight::{Relight, StageTimes};
 
 /// What the window starts from.
 pub struct WindowSetup<'a> {

@@ -164,7 +164,7 @@ fn load_scene(spec: &str) -> Result<Scene> {
 }
 
 /// A scene's own light.
-fn scene_light(scene: &Scene) -> Result<Light, mlt_view::light::LightError> {
+fn scene_light(scene: &Scene) -> Result<Light, mlt_relight::light::LightError> {
     let l = &scene.light;
     match l.kind {
         LightKind::Point => Light::point(l.position.into(), l.intensity),

@@ -8,12 +8,12 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::Args;
+use mlt_relight::LoadStats;
 use mlt_view::frame::FrameDriver;
 use mlt_view::gpu::mesh::GpuMesh;
 use mlt_view::gpu::{Gpu, Renderer};
 use mlt_view::headless::{self, Timings};
 use mlt_view::reference::{render_reference, write_reference};
-use mlt_view::relight::LoadStats;
 
 use crate::cmd::args::{BakedArgs, GpuArgs};
 use crate::cmd::load::{with_viewing, Viewing};

@@ -1,11 +1,11 @@
 //! Flattening on the GPU (section 4.1; the paper notes that the CPU stages "could potentially
 //! be implemented on the GPU"): the precomputed sparse operator of
-//! `mlt_format::flatten_op` uploaded once, applied per relit frame by a compute pass that
+//! `mlt_relight::flatten_op` uploaded once, applied per relit frame by a compute pass that
 //! writes the flat coefficients straight into the buffer the splatting pass reads. Each row is
 //! summed in its stored order, as on the CPU.
 
-use mlt_format::flatten_op::{FlattenOp, BLOCK_ROWS, QUANTUM};
 use mlt_format::links::LINK_DIM;
+use mlt_relight::flatten_op::{FlattenOp, BLOCK_ROWS, QUANTUM};
 use wgpu::util::DeviceExt;
 
 use super::context::{Gpu, GpuError};

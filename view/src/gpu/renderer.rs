@@ -10,9 +10,9 @@ use std::ops::Range;
 use std::time::Instant;
 
 use glam::{Mat4, Vec3};
-use mlt_format::flatten_op::FlattenOp;
 use mlt_format::links::LINK_DIM;
 use mlt_format::{Basis, IndexedBasis};
+use mlt_relight::{FlattenOp, Light};
 use serde::Serialize;
 
 use super::context::{Gpu, GpuError};
@@ -31,7 +31,6 @@ use super::targets::Targets;
 use super::uniforms::Globals;
 use crate::camera::Camera;
 use crate::images::{RgbImage, ToneMap};
-use crate::light::Light;
 
 pub use super::passes::display::ViewMode;
 

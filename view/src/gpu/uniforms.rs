@@ -2,9 +2,9 @@
 
 use bytemuck::{Pod, Zeroable};
 use glam::{Mat4, Vec3};
+use mlt_relight::light::{Cone, Light};
 
 use crate::camera::Camera;
-use crate::light::{Cone, Light};
 
 /// `Globals` of `common.wgsl` (std140-compatible: only vec4 and mat4 members).
 #[repr(C)]

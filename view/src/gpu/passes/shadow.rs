@@ -11,7 +11,7 @@ use crate::gpu::pipeline::{
 };
 use crate::gpu::scene_buffers::SceneBuffers;
 use crate::gpu::uniforms::{FaceUniform, ShadowFaces};
-use crate::light::Light;
+use mlt_relight::Light;
 
 const SHADOW: &str = include_str!("../shaders/shadow.wgsl");
 const SHADOW_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;

@@ -1,5 +1,6 @@
-//! The light model shared with the bake (DESIGN.md): a point or spot light of RGB radiant
-//! intensity `I` (W/sr); direct irradiance `E = I max(0, cos) / d^2 V`, inside the spot's cone.
+//! The light model, the same as the bake's (the file's [`LightInfo`]): a point or spot light of
+//! RGB radiant intensity `I` (W/sr); direct irradiance `E = I max(0, cos) / d^2 V`, inside the
+//! spot's cone.
 
 use glam::Vec3;
 use mlt_format::meta::LightInfo;
