@@ -13,14 +13,14 @@ use mlt_format::{IndexedBasis, Transport};
 use mlt_scenes::RayCaster;
 
 use crate::error::BakeError;
-use crate::neumann::{series, spectral_radius, BounceReceivers, Row, SeriesReport};
+use crate::neumann::{series, spectral_radius, BounceReceivers, Row, Rows, SeriesReport};
 use crate::observer::Observer;
 use crate::refine::{refine, ReceiverLinks, RefineSettings, RefineStats};
 
 /// The result, with what the user should be told.
 pub struct TransportOutput {
     pub transport: Transport,
-    /// Always measured; stored in the file only when timings are recorded.
+    /// Always taken; stored in the file only when timings are recorded.
     pub timings: TransportTimings,
     pub warnings: Vec<String>,
     /// Levels of the basis to store: finer levels without a link of S are left out (see
@@ -246,111 +246,16 @@ pub fn finish_transport(
     obs: &dyn Observer,
 ) -> Result<TransportOutput, BakeError> {
     let t_start = Instant::now();
-    let mut warnings = Vec::new();
     let b = &ib.basis;
     let levels = ib.levels();
     let senders = b.level_offsets[params.sender_levels as usize] as usize;
     let receivers = b.len();
-    obs.stage("indirect bounces");
-    let t1 = Instant::now();
-    let rho = spectral_radius(ib, &t);
-    // At 1 - 1e-4 the series would need some 10^5 bounces; treat it as divergent.
-    if rho.is_nan() || rho >= 1.0 - 1e-4 {
-        return Err(BakeError::Divergent {
-            spectral_radius: rho,
-        });
-    }
-    let bounce_receivers = if params.bounces_on_all_receivers {
-        BounceReceivers::All
-    } else {
-        BounceReceivers::Coarsest
-    };
-    // The count: the one asked for, or (auto) the one that brings the tail rho^B under the
-    // tolerance, at most the cap.
-    let needed = bounces_needed(rho, policy.tolerance);
-    let planned = if policy.auto {
-        needed
-            .unwrap_or(params.bounces as u64)
-            .min(params.bounces as u64) as u32
-    } else {
-        params.bounces
-    };
-    let (extra, report) = series(
-        ib,
-        &t,
-        senders,
-        planned,
-        params.bounce_epsilon,
-        bounce_receivers,
-        |b, kept| {
-            // Every bounce of a short series; of a long one the first few, powers of two
-            // and the last.
-            if b <= 8 || b.is_power_of_two() || b == planned || kept == 0 {
-                obs.done(
-                    &format!("bounce {b}"),
-                    t1.elapsed().as_secs_f64(),
-                    &format!("{kept} links above epsilon"),
-                )
-            }
-        },
-    );
-    let bounces_s = t1.elapsed().as_secs_f64();
-    obs.done(
-        "indirect bounces",
-        bounces_s,
-        &format!("{} bounces, spectral radius {rho:.3}", report.bounces),
-    );
-
-    // S = T + the bounces, regrouped sender-major: every link as (sender, receiver, value),
-    // sorted; a receiver holds at most one T link and one bounce link per sender, summed
-    // (float addition of two terms is commutative, so the order does not matter).
-    let extra_links: usize = extra.iter().map(|r| r.len()).sum();
-    let mut triples: Vec<(u32, u32, [f32; LINK_DIM])> =
-        Vec::with_capacity(t.link_count() + extra_links);
-    for (row, &r) in t.rows.iter().enumerate() {
-        let (a, e) = (t.offsets[row] as usize, t.offsets[row + 1] as usize);
-        for (s, v) in t.senders[a..e].iter().zip(&t.values[a..e]) {
-            triples.push((*s, r, *v));
-        }
-        for (s, v) in extra.get(row).map(|x| &x[..]).unwrap_or(&[]) {
-            triples.push((*s, r, *v));
-        }
-    }
-    triples.sort_unstable_by_key(|&(s, r, _)| (s, r));
-    let mut s_per_level = vec![0u64; levels];
-    let mut columns: Vec<(u32, Row)> = Vec::new();
-    for (s, r, v) in triples {
-        match columns.last_mut() {
-            Some((cs, col)) if *cs == s => match col.last_mut() {
-                Some((cr, cv)) if *cr == r => {
-                    for k in 0..LINK_DIM {
-                        cv[k] += v[k];
-                    }
-                    continue;
-                }
-                _ => col.push((r, v)),
-            },
-            _ => columns.push((s, vec![(r, v)])),
-        }
-        s_per_level[b.level_of(r as usize)] += 1;
-    }
+    let run = run_series(ib, &t, &params, policy, senders, obs)?;
+    let (columns, s_per_level) = sender_major(ib, &t, &run.extra);
+    let linked_per_level = linked_per_level(ib, &columns);
     // Levels to store: every sender level, and the receiver levels that hold a link of S
     // (refinement queues a receiver's children only when it kept a link, so these are
     // contiguous from level 0).
-    let mut linked_per_level = vec![0u64; levels];
-    {
-        let mut linked = vec![false; receivers];
-        for (_, col) in &columns {
-            for (r, _) in col {
-                linked[*r as usize] = true;
-            }
-        }
-        for (r, &l) in linked.iter().enumerate() {
-            if l {
-                linked_per_level[b.level_of(r)] += 1;
-            }
-        }
-    }
     let last_linked = linked_per_level
         .iter()
         .rposition(|&n| n > 0)
@@ -379,38 +284,16 @@ pub fn finish_transport(
         .fold(0.0f64, |m, (_, v)| {
             m.max(crate::gather::link_norm(v) as f64)
         });
+    let SeriesRun {
+        rho,
+        needed,
+        planned,
+        report,
+        bounces_s,
+        ..
+    } = run;
     let error = error_estimate(&report, rho, policy.tolerance, qerr, max_link);
-    let more = needed.map_or("many more".to_string(), |n| n.to_string());
-    if !error.series_converged {
-        let w = if policy.auto {
-            format!(
-                "the Neumann series is cut at the cap of {} bounces (spectral radius {rho:.4}): bounces left out carry about {:.1} % of the indirect light; {more} bounces would bring that under {:.1} % (raise the cap with --bounces auto:N)",
-                report.bounces,
-                100.0 * error.series_tail,
-                100.0 * policy.tolerance
-            )
-        } else {
-            format!(
-                "the Neumann series has not converged after {} bounces (spectral radius {rho:.4}): bounces left out carry about {:.1} % of the indirect light; {more} bounces would bring that under {:.1} % (--bounces auto chooses the count)",
-                report.bounces,
-                100.0 * error.series_tail,
-                100.0 * policy.tolerance
-            )
-        };
-        obs.warn(&w);
-        warnings.push(w);
-    }
-    if error.bounce_truncation > policy.tolerance {
-        let w = format!(
-            "truncating bounces 2 and later at the bounce epsilon {} drops about {:.1} % of the indirect light (estimate, above the tolerance {:.1} %); a smaller --bounce-epsilon (e.g. {}) keeps it",
-            params.bounce_epsilon,
-            100.0 * error.bounce_truncation,
-            100.0 * policy.tolerance,
-            params.bounce_epsilon / 25.0
-        );
-        obs.warn(&w);
-        warnings.push(w);
-    }
+    let warnings = error_warnings(&error, &report, rho, needed, &params, policy, obs);
     let dense_links_bytes = senders as u64 * receivers as u64 * (LINK_DIM as u64 * 2);
     let report_section = TransportReport {
         bounce_mode: if policy.auto { "auto" } else { "fixed" }.into(),
@@ -474,4 +357,188 @@ pub fn finish_transport(
         warnings,
         levels_stored,
     })
+}
+
+/// What the Neumann series gave: the spectral radius, the bounces the tolerance needs, the
+/// bounces planned, the bounces beyond T summed per row, the report and the seconds it took.
+struct SeriesRun {
+    rho: f64,
+    needed: Option<u64>,
+    planned: u32,
+    extra: Rows,
+    report: SeriesReport,
+    bounces_s: f64,
+}
+
+/// The spectral-radius check and the series (section 3.2), with the count asked for or, with
+/// `policy.auto`, the one that brings the tail `rho^B` under the tolerance, at most the cap.
+fn run_series(
+    ib: &IndexedBasis,
+    t: &ReceiverLinks,
+    params: &TransportParams,
+    policy: BouncePolicy,
+    senders: usize,
+    obs: &dyn Observer,
+) -> Result<SeriesRun, BakeError> {
+    obs.stage("indirect bounces");
+    let t1 = Instant::now();
+    let rho = spectral_radius(ib, t);
+    // At 1 - 1e-4 the series would need some 10^5 bounces; treat it as divergent.
+    if rho.is_nan() || rho >= 1.0 - 1e-4 {
+        return Err(BakeError::Divergent {
+            spectral_radius: rho,
+        });
+    }
+    let bounce_receivers = if params.bounces_on_all_receivers {
+        BounceReceivers::All
+    } else {
+        BounceReceivers::Coarsest
+    };
+    let needed = bounces_needed(rho, policy.tolerance);
+    let planned = if policy.auto {
+        needed
+            .unwrap_or(params.bounces as u64)
+            .min(params.bounces as u64) as u32
+    } else {
+        params.bounces
+    };
+    let (extra, report) = series(
+        ib,
+        t,
+        senders,
+        planned,
+        params.bounce_epsilon,
+        bounce_receivers,
+        |b, kept| {
+            // Every bounce of a short series; of a long one the first few, powers of two
+            // and the last.
+            if b <= 8 || b.is_power_of_two() || b == planned || kept == 0 {
+                obs.done(
+                    &format!("bounce {b}"),
+                    t1.elapsed().as_secs_f64(),
+                    &format!("{kept} links above epsilon"),
+                )
+            }
+        },
+    );
+    let bounces_s = t1.elapsed().as_secs_f64();
+    obs.done(
+        "indirect bounces",
+        bounces_s,
+        &format!("{} bounces, spectral radius {rho:.3}", report.bounces),
+    );
+    Ok(SeriesRun {
+        rho,
+        needed,
+        planned,
+        extra,
+        report,
+        bounces_s,
+    })
+}
+
+/// One sender's links of S: `(receiver, value)` ascending by receiver.
+type Column = (u32, Row);
+
+/// S = T + the bounces, regrouped sender-major: every link as (sender, receiver, value),
+/// sorted; a receiver holds at most one T link and one bounce link per sender, summed (float
+/// addition of two terms is commutative, so the order does not matter). Returns the columns
+/// and the links of S per receiver level.
+fn sender_major(ib: &IndexedBasis, t: &ReceiverLinks, extra: &Rows) -> (Vec<Column>, Vec<u64>) {
+    let b = &ib.basis;
+    let extra_links: usize = extra.iter().map(|r| r.len()).sum();
+    let mut triples: Vec<(u32, u32, [f32; LINK_DIM])> =
+        Vec::with_capacity(t.link_count() + extra_links);
+    for (row, &r) in t.rows.iter().enumerate() {
+        let (a, e) = (t.offsets[row] as usize, t.offsets[row + 1] as usize);
+        for (s, v) in t.senders[a..e].iter().zip(&t.values[a..e]) {
+            triples.push((*s, r, *v));
+        }
+        for (s, v) in extra.get(row).map(|x| &x[..]).unwrap_or(&[]) {
+            triples.push((*s, r, *v));
+        }
+    }
+    triples.sort_unstable_by_key(|&(s, r, _)| (s, r));
+    let mut s_per_level = vec![0u64; ib.levels()];
+    let mut columns: Vec<Column> = Vec::new();
+    for (s, r, v) in triples {
+        match columns.last_mut() {
+            Some((cs, col)) if *cs == s => match col.last_mut() {
+                Some((cr, cv)) if *cr == r => {
+                    for k in 0..LINK_DIM {
+                        cv[k] += v[k];
+                    }
+                    continue;
+                }
+                _ => col.push((r, v)),
+            },
+            _ => columns.push((s, vec![(r, v)])),
+        }
+        s_per_level[b.level_of(r as usize)] += 1;
+    }
+    (columns, s_per_level)
+}
+
+/// Receivers that hold a link of S, per level.
+fn linked_per_level(ib: &IndexedBasis, columns: &[Column]) -> Vec<u64> {
+    let b = &ib.basis;
+    let mut linked_per_level = vec![0u64; ib.levels()];
+    let mut linked = vec![false; b.len()];
+    for (_, col) in columns {
+        for (r, _) in col {
+            linked[*r as usize] = true;
+        }
+    }
+    for (r, &l) in linked.iter().enumerate() {
+        if l {
+            linked_per_level[b.level_of(r)] += 1;
+        }
+    }
+    linked_per_level
+}
+
+/// Warnings (sent to `obs` and returned) when the series left out more of the indirect light
+/// than the tolerance: by stopping too early, or by truncating bounces 2 and later.
+fn error_warnings(
+    error: &ErrorEstimate,
+    report: &SeriesReport,
+    rho: f64,
+    needed: Option<u64>,
+    params: &TransportParams,
+    policy: BouncePolicy,
+    obs: &dyn Observer,
+) -> Vec<String> {
+    let mut warnings = Vec::new();
+    let more = needed.map_or("many more".to_string(), |n| n.to_string());
+    if !error.series_converged {
+        let w = if policy.auto {
+            format!(
+                "the Neumann series is cut at the cap of {} bounces (spectral radius {rho:.4}): bounces left out carry about {:.1} % of the indirect light; {more} bounces would bring that under {:.1} % (raise the cap with --bounces auto:N)",
+                report.bounces,
+                100.0 * error.series_tail,
+                100.0 * policy.tolerance
+            )
+        } else {
+            format!(
+                "the Neumann series has not converged after {} bounces (spectral radius {rho:.4}): bounces left out carry about {:.1} % of the indirect light; {more} bounces would bring that under {:.1} % (--bounces auto chooses the count)",
+                report.bounces,
+                100.0 * error.series_tail,
+                100.0 * policy.tolerance
+            )
+        };
+        obs.warn(&w);
+        warnings.push(w);
+    }
+    if error.bounce_truncation > policy.tolerance {
+        let w = format!(
+            "truncating bounces 2 and later at the bounce epsilon {} drops about {:.1} % of the indirect light (estimate, above the tolerance {:.1} %); a smaller --bounce-epsilon (e.g. {}) keeps it",
+            params.bounce_epsilon,
+            100.0 * error.bounce_truncation,
+            100.0 * policy.tolerance,
+            params.bounce_epsilon / 25.0
+        );
+        obs.warn(&w);
+        warnings.push(w);
+    }
+    warnings
 }
