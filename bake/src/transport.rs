@@ -251,39 +251,19 @@ pub fn finish_transport(
     let senders = b.level_offsets[params.sender_levels as usize] as usize;
     let receivers = b.len();
     let run = run_series(ib, &t, &params, policy, senders, obs)?;
-    let (columns, s_per_level) = sender_major(ib, &t, &run.extra);
-    let linked_per_level = linked_per_level(ib, &columns);
-    // Levels to store: every sender level, and the receiver levels that hold a link of S
-    // (refinement queues a receiver's children only when it kept a link, so these are
-    // contiguous from level 0).
-    let last_linked = linked_per_level
-        .iter()
-        .rposition(|&n| n > 0)
-        .map_or(0, |l| l + 1);
-    let levels_stored = last_linked.max(params.sender_levels as usize).min(levels);
-    let stored_receivers = b.level_offsets[levels_stored] as usize;
-    let (links, qerr) = Links::pack(
-        stored_receivers as u32,
-        senders as u32,
-        columns.iter().map(|(s, col)| SenderLinks {
-            sender: *s,
-            links: col,
-        }),
-    );
-    let links_bytes = mlt_format::file::archived_len(&links)?;
-    let basis_bytes = mlt_format::file::basis_archived_len(ib)?;
-    let stored_basis_bytes = if levels_stored < levels {
-        mlt_format::file::basis_archived_len(&trim_levels(ib, levels_stored)?)?
-    } else {
-        basis_bytes
-    };
-
-    let max_link = columns
-        .iter()
-        .flat_map(|(_, col)| col.iter())
-        .fold(0.0f64, |m, (_, v)| {
-            m.max(crate::gather::link_norm(v) as f64)
-        });
+    let packed = pack_s(ib, &t, &run.extra, &params, senders)?;
+    let PackedS {
+        links,
+        qerr,
+        s_per_level,
+        linked_per_level,
+        levels_stored,
+        stored_receivers,
+        links_bytes,
+        basis_bytes,
+        stored_basis_bytes,
+        max_link,
+    } = packed;
     let SeriesRun {
         rho,
         needed,
@@ -356,6 +336,77 @@ pub fn finish_transport(
         timings,
         warnings,
         levels_stored,
+    })
+}
+
+/// S packed for the file, with the counts and sizes its statistics report.
+struct PackedS {
+    links: Links,
+    /// The largest absolute f16 error of the packed links.
+    qerr: f32,
+    s_per_level: Vec<u64>,
+    linked_per_level: Vec<u64>,
+    levels_stored: usize,
+    stored_receivers: usize,
+    links_bytes: u64,
+    basis_bytes: u64,
+    stored_basis_bytes: u64,
+    /// The largest link norm of S.
+    max_link: f64,
+}
+
+/// S = T + `extra`, sender-major, packed over the levels to store: every sender level, and
+/// the receiver levels that hold a link of S (refinement queues a receiver's children only
+/// when it kept a link, so these are contiguous from level 0).
+fn pack_s(
+    ib: &IndexedBasis,
+    t: &ReceiverLinks,
+    extra: &Rows,
+    params: &TransportParams,
+    senders: usize,
+) -> Result<PackedS, BakeError> {
+    let b = &ib.basis;
+    let levels = ib.levels();
+    let (columns, s_per_level) = sender_major(ib, t, extra);
+    let linked_per_level = linked_per_level(ib, &columns);
+    let last_linked = linked_per_level
+        .iter()
+        .rposition(|&n| n > 0)
+        .map_or(0, |l| l + 1);
+    let levels_stored = last_linked.max(params.sender_levels as usize).min(levels);
+    let stored_receivers = b.level_offsets[levels_stored] as usize;
+    let (links, qerr) = Links::pack(
+        stored_receivers as u32,
+        senders as u32,
+        columns.iter().map(|(s, col)| SenderLinks {
+            sender: *s,
+            links: col,
+        }),
+    );
+    let links_bytes = mlt_format::file::archived_len(&links)?;
+    let basis_bytes = mlt_format::file::basis_archived_len(ib)?;
+    let stored_basis_bytes = if levels_stored < levels {
+        mlt_format::file::basis_archived_len(&trim_levels(ib, levels_stored)?)?
+    } else {
+        basis_bytes
+    };
+    let max_link = columns
+        .iter()
+        .flat_map(|(_, col)| col.iter())
+        .fold(0.0f64, |m, (_, v)| {
+            m.max(crate::gather::link_norm(v) as f64)
+        });
+    Ok(PackedS {
+        links,
+        qerr,
+        s_per_level,
+        linked_per_level,
+        levels_stored,
+        stored_receivers,
+        links_bytes,
+        basis_bytes,
+        stored_basis_bytes,
+        max_link,
     })
 }
 
