@@ -251,19 +251,7 @@ pub fn finish_transport(
     let senders = b.level_offsets[params.sender_levels as usize] as usize;
     let receivers = b.len();
     let run = run_series(ib, &t, &params, policy, senders, obs)?;
-    let packed = pack_s(ib, &t, &run.extra, &params, senders)?;
-    let PackedS {
-        links,
-        qerr,
-        s_per_level,
-        linked_per_level,
-        levels_stored,
-        stored_receivers,
-        links_bytes,
-        basis_bytes,
-        stored_basis_bytes,
-        max_link,
-    } = packed;
+    let p = pack_s(ib, &t, &run.extra, &params, senders)?;
     let SeriesRun {
         rho,
         needed,
@@ -272,7 +260,7 @@ pub fn finish_transport(
         bounces_s,
         ..
     } = run;
-    let error = error_estimate(&report, rho, policy.tolerance, qerr, max_link);
+    let error = error_estimate(&report, rho, policy.tolerance, p.qerr, p.max_link);
     let warnings = error_warnings(&error, &report, rho, needed, &params, policy, obs);
     let dense_links_bytes = senders as u64 * receivers as u64 * (LINK_DIM as u64 * 2);
     let report_section = TransportReport {
@@ -283,21 +271,21 @@ pub fn finish_transport(
         error,
         left_out: LeftOut {
             levels_placed: levels as u32,
-            levels_stored: levels_stored as u32,
+            levels_stored: p.levels_stored as u32,
             points_placed: receivers as u64,
-            points_stored: stored_receivers as u64,
-            level_bytes_saved: basis_bytes.saturating_sub(stored_basis_bytes),
+            points_stored: p.stored_receivers as u64,
+            level_bytes_saved: p.basis_bytes.saturating_sub(p.stored_basis_bytes),
             receivers_refined_per_level: rstats.receivers_refined.clone(),
-            receivers_linked_per_level: linked_per_level,
-            senders_linked: links.sender_ids.len() as u64,
+            receivers_linked_per_level: p.linked_per_level,
+            senders_linked: p.links.sender_ids.len() as u64,
             senders: senders as u64,
-            links_bytes,
+            links_bytes: p.links_bytes,
             dense_links_bytes,
         },
     };
 
     let stats = TransportStats {
-        links: links.link_count() as u64,
+        links: p.links.link_count() as u64,
         potential_links: senders as u64 * receivers as u64,
         t_links: t.link_count() as u64,
         senders: senders as u64,
@@ -306,15 +294,15 @@ pub fn finish_transport(
         unsupported_hits: rstats.unsupported_hits,
         receivers_refined: rstats.receivers_refined,
         t_links_per_level: rstats.links_per_level,
-        s_links_per_level: s_per_level,
+        s_links_per_level: p.s_per_level,
         bounces: report.bounces,
         bounce_max_norm: report.max_norm,
         bounce_sum_norm: report.sum_norm,
         bounce_kept_sum_norm: report.kept_sum_norm,
         spectral_radius: rho,
-        quantisation_error: qerr,
-        basis_bytes,
-        links_bytes,
+        quantisation_error: p.qerr,
+        basis_bytes: p.basis_bytes,
+        links_bytes: p.links_bytes,
     };
     let timings = TransportTimings {
         refine_s,
@@ -330,12 +318,12 @@ pub fn finish_transport(
                 stats,
                 timings: None,
             },
-            links,
+            links: p.links,
             report: Some(report_section),
         },
         timings,
         warnings,
-        levels_stored,
+        levels_stored: p.levels_stored,
     })
 }
 
