@@ -8,7 +8,7 @@
 //! [[job]]
 //! name = "cornell-eps-0.01"      # unique; the output is NAME.mlt and NAME.json
 //! scene = "cornell.toml"         # a manifest, mesh or builtin: name; paths relative to this file
-//! receiver_levels = 4            # any bake option, as on the command line
+//! receiver_levels = 4            # any key of a manifest's [bake] table (BakeOptions)
 //! epsilon = 0.01
 //! ```
 
@@ -18,7 +18,7 @@ use std::sync::Mutex;
 use std::time::Instant;
 
 use mlt_format::{BakedFile, WriteOptions};
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
 use crate::error::BakeError;
 use crate::observer::Observer;
@@ -26,60 +26,13 @@ use crate::params::BakeOptions;
 use crate::pipeline::{bake_scene, input_key, BakeOutput};
 use crate::table1::{our_row, Table1Row};
 
-/// One job of a batch manifest.
-#[derive(Clone, Debug, Default, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
+/// One job of a batch manifest: its name, its scene and its bake options (any key of
+/// [`BakeOptions`] that a manifest's `[bake]` table takes).
+#[derive(Clone, Debug, Default)]
 pub struct JobSpec {
     pub name: String,
     pub scene: String,
-    pub receiver_levels: Option<u32>,
-    pub sender_levels: Option<u32>,
-    pub coarse_count: Option<u32>,
-    pub coarse_radius: Option<f32>,
-    pub seed: Option<u64>,
-    pub epsilon: Option<f32>,
-    pub bounce_epsilon: Option<f32>,
-    pub bounces: Option<u32>,
-    /// Choose the bounce count from the spectral radius (`bounces` is then the cap).
-    #[serde(default)]
-    pub auto_bounces: bool,
-    pub bounce_tolerance: Option<f64>,
-    pub gather_rays: Option<u32>,
-    pub max_misses: Option<u32>,
-    #[serde(default)]
-    pub bounces_on_all_receivers: bool,
-    #[serde(default)]
-    pub basis_only: bool,
-}
-
-impl JobSpec {
-    pub fn options(&self, record_timings: bool, compress: bool) -> BakeOptions {
-        BakeOptions {
-            receiver_levels: self.receiver_levels,
-            coarse_count: self.coarse_count,
-            coarse_radius: self.coarse_radius,
-            seed: self.seed,
-            max_misses: self.max_misses,
-            epsilon: self.epsilon,
-            bounce_epsilon: self.bounce_epsilon,
-            sender_levels: self.sender_levels,
-            bounces: self.bounces,
-            auto_bounces: self.auto_bounces,
-            bounce_tolerance: self.bounce_tolerance,
-            gather_rays: self.gather_rays,
-            bounces_on_all_receivers: self.bounces_on_all_receivers,
-            basis_only: self.basis_only,
-            shard: None,
-            record_timings,
-            compress,
-        }
-    }
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct BatchFile {
-    job: Vec<JobSpec>,
+    pub options: BakeOptions,
 }
 
 /// Reads the jobs of `manifest`, with scene paths made relative to the current directory.
@@ -89,9 +42,9 @@ pub fn read_jobs(manifest: &Path) -> Result<Vec<JobSpec>, BakeError> {
         message,
     };
     let text = std::fs::read_to_string(manifest).map_err(|e| bad(e.to_string()))?;
-    let value: toml::Table = toml::from_str(&text).map_err(|e| bad(e.to_string()))?;
+    let mut value: toml::Table = toml::from_str(&text).map_err(|e| bad(e.to_string()))?;
     let dir = manifest.parent().unwrap_or(Path::new(""));
-    if !value.contains_key("job") {
+    let Some(jobs) = value.remove("job") else {
         // A scene manifest: one job named after the file.
         let name = manifest
             .file_stem()
@@ -102,26 +55,47 @@ pub fn read_jobs(manifest: &Path) -> Result<Vec<JobSpec>, BakeError> {
             scene: manifest.display().to_string(),
             ..Default::default()
         }]);
+    };
+    if let Some(key) = value.keys().next() {
+        return Err(bad(format!(
+            "unknown key `{key}`: a batch manifest holds [[job]] tables only"
+        )));
     }
-    let batch: BatchFile = toml::from_str(&text).map_err(|e| bad(e.to_string()))?;
-    let mut jobs = batch.job;
-    for j in &mut jobs {
-        if j.name.is_empty()
-            || !j
-                .name
+    let toml::Value::Array(jobs) = jobs else {
+        return Err(bad("`job` must be [[job]] tables".into()));
+    };
+    let mut out = Vec::with_capacity(jobs.len());
+    for (k, job) in jobs.into_iter().enumerate() {
+        let toml::Value::Table(mut table) = job else {
+            return Err(bad(format!("job {}: not a table", k + 1)));
+        };
+        let mut text_key = |key: &str| match table.remove(key) {
+            Some(toml::Value::String(s)) => Ok(s),
+            Some(_) => Err(bad(format!("job {}: `{key}` must be a string", k + 1))),
+            None => Err(bad(format!("job {}: missing `{key}`", k + 1))),
+        };
+        let name = text_key("name")?;
+        let mut scene = text_key("scene")?;
+        if name.is_empty()
+            || !name
                 .chars()
                 .all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
         {
             return Err(bad(format!(
-                "job name '{}' must be non-empty letters, digits, '-', '_' or '.'",
-                j.name
+                "job name '{name}' must be non-empty letters, digits, '-', '_' or '.'"
             )));
         }
-        if !j.scene.starts_with("builtin:") && Path::new(&j.scene).is_relative() {
-            j.scene = dir.join(&j.scene).display().to_string();
+        if !scene.starts_with("builtin:") && Path::new(&scene).is_relative() {
+            scene = dir.join(&scene).display().to_string();
         }
+        let options = BakeOptions::from_table(table, manifest, &format!("job '{name}'"))?;
+        out.push(JobSpec {
+            name,
+            scene,
+            options,
+        });
     }
-    Ok(jobs)
+    Ok(out)
 }
 
 /// What happened to one job.
@@ -274,7 +248,13 @@ fn run_job(
     };
     let outcome = (|| -> Result<(), BakeError> {
         let scene = mlt_scenes::load_scene(&job.scene)?;
-        let opts = job.options(settings.record_timings, settings.compress);
+        // The batch's command line over the job (and, in `bake_scene`, over the manifest).
+        let command_line = BakeOptions {
+            record_timings: settings.record_timings,
+            compress: settings.compress,
+            ..Default::default()
+        };
+        let opts = command_line.or(&job.options);
         let key = input_key(&scene, &opts)?;
         result.input_key = Some(format!("{key:016x}"));
         if !settings.force && stats.exists() {
@@ -371,4 +351,74 @@ pub fn summary_markdown(s: &Summary) -> String {
         ));
     }
     o
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn temp(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("mlt-batch-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    const MANIFEST: &str =
+        "[scene]\nsource = \"builtin:cornell\"\n\n[bake]\nreceiver_levels = 4\nseed = 7\nepsilon = 0.1\n";
+
+    #[test]
+    fn the_command_line_beats_the_job_which_beats_the_manifest() {
+        let d = temp("layers");
+        std::fs::write(d.join("room.toml"), MANIFEST).unwrap();
+        let jobs = d.join("jobs.toml");
+        std::fs::write(
+            &jobs,
+            "[[job]]\nname = \"a\"\nscene = \"room.toml\"\nreceiver_levels = 3\nseed = 8\n",
+        )
+        .unwrap();
+        let job = read_jobs(&jobs).unwrap().remove(0);
+        let scene = mlt_scenes::load_scene(&job.scene).unwrap();
+        let key = |o: &BakeOptions| input_key(&scene, o).unwrap();
+        let explicit = |levels, seed| BakeOptions {
+            receiver_levels: Some(levels),
+            seed: Some(seed),
+            epsilon: Some(0.1),
+            ..Default::default()
+        };
+        assert_eq!(key(&BakeOptions::default()), key(&explicit(4, 7)));
+        assert_eq!(key(&job.options), key(&explicit(3, 8)));
+        let command_line = BakeOptions {
+            seed: Some(9),
+            ..Default::default()
+        };
+        assert_eq!(key(&command_line.or(&job.options)), key(&explicit(3, 9)));
+        assert_ne!(key(&job.options), key(&BakeOptions::default()));
+        let _ = std::fs::remove_dir_all(&d);
+    }
+
+    #[test]
+    fn unknown_keys_of_jobs_and_manifests_are_errors_naming_the_file() {
+        let d = temp("unknown");
+        let jobs = d.join("jobs.toml");
+        std::fs::write(
+            &jobs,
+            "[[job]]\nname = \"a\"\nscene = \"builtin:cornell\"\nbounce = 3\n",
+        )
+        .unwrap();
+        let e = read_jobs(&jobs).unwrap_err().to_string();
+        assert!(e.contains("jobs.toml") && e.contains("bounce"), "{e}");
+
+        let manifest = d.join("room.toml");
+        std::fs::write(&manifest, MANIFEST.replace("seed = 7", "sead = 7")).unwrap();
+        let scene = mlt_scenes::load_scene(&manifest.to_string_lossy()).unwrap();
+        let e = input_key(&scene, &BakeOptions::default())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("room.toml") && e.contains("sead"), "{e}");
+        // A scene manifest given to the batch is one job; its [bake] table fails that job.
+        let job = read_jobs(&manifest).unwrap().remove(0);
+        assert_eq!(job.name, "room");
+        let _ = std::fs::remove_dir_all(&d);
+    }
 }

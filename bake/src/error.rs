@@ -14,6 +14,12 @@ pub enum BakeError {
         path: std::path::PathBuf,
         message: String,
     },
+    /// A manifest's `[bake]` table or a batch job's table that does not parse.
+    #[error("{path}: {message}")]
+    Options {
+        path: std::path::PathBuf,
+        message: String,
+    },
     #[error("cannot merge the shards: {0}")]
     Merge(String),
     #[error("invalid parameter: {0}")]

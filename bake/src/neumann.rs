@@ -9,14 +9,14 @@
 //! `X_b[i][s] = sum_j K[i][j] (n_j . X_{b-1}[j][s])`  (per colour channel),
 //!
 //! truncated below epsilon, except the links from coarsest senders to coarsest receivers, which
-//! are always kept (nothing coarser represents them; see `refine`). The paper computes bounces 2 and later on the coarsest receivers
-//! only ([`BounceReceivers::Coarsest`]): `S` adds every `X_b` to T's level-0 rows. Vector
-//! irradiance turns with the surface normal, so on curved geometry the coarsest level alone
-//! reconstructs these bounces poorly (about 10 % low on a closed sphere of 24 level-0 points);
-//! [`BounceReceivers::All`] applies every refined row of T instead (`X_b = T Y_{b-1}`: finer
-//! rows of T are Eq. 17 differences, so their products are the finer coefficients of bounce
-//! `b`), at the cost of more products. The series converges when
-//! the spectral radius of `M[j][i] = n_j . K[j][i]` is below one; it is estimated by power
+//! are always kept (nothing coarser represents them; see `refine`). The paper computes bounces
+//! 2 and later on the coarsest receivers only ([`BounceReceivers::Coarsest`]): `S` adds every
+//! `X_b` to T's level-0 rows. Vector irradiance turns with the surface normal, so on curved
+//! geometry the coarsest level alone reconstructs these bounces poorly (about 10 % low on a
+//! closed sphere of 24 level-0 points); [`BounceReceivers::All`] applies every refined row of T
+//! instead (`X_b = T Y_{b-1}`: finer rows of T are Eq. 17 differences, so their products are
+//! the finer coefficients of bounce `b`), at the cost of more products. The series converges
+//! when the spectral radius of `M[j][i] = n_j . K[j][i]` is below one; it is estimated by power
 //! iteration first, and a scene at or above one is refused.
 
 use mlt_format::links::LINK_DIM;
@@ -148,137 +148,20 @@ pub fn series(
         bounces: 1,
         ..Default::default()
     };
-    // The first bounce is T itself.
-    let first: Rows = (0..n0)
-        .map(|j| {
-            let (s, v) = t.row(j);
-            s.iter().copied().zip(v.iter().copied()).collect()
-        })
-        .collect();
-    let norms = |rows: &Rows| {
-        rows.iter()
-            .flatten()
-            .fold((0.0f64, 0.0f64), |(m, s), (_, v)| {
-                let n = link_norm(v) as f64;
-                (m.max(n), s + n)
-            })
-    };
-    // T's links are already the kept ones: nothing of the first bounce is truncated here.
-    let (m1, s1) = norms(&first);
-    report.max_norm.push(m1);
-    report.sum_norm.push(s1);
-    report.kept_sum_norm.push(s1);
-    let e1 = first.iter().enumerate().fold([0.0; 3], |acc, (j, row)| {
-        add3(
-            acc,
-            row_energy(ib.basis.normals[j], n0, row.iter().map(|(s, v)| (*s, v))),
-        )
-    });
-    report.energy.push(e1);
-    report.kept_energy.push(e1);
+    let first = first_bounce(ib, t, n0, &mut report);
     let mut total: Rows = vec![Vec::new(); out_rows];
     // Level-0 rows of the previous bounce: the next bounce's sender input.
     let mut prev = first;
     for b in 2..=bounces {
-        // Y[j][s] = n_j . X_{b-1}[j][s], per channel.
-        let y: Vec<Vec<(u32, [f32; 3])>> = prev
-            .iter()
-            .enumerate()
-            .map(|(j, row)| {
-                let n = ib.basis.normals[j];
-                row.iter()
-                    .map(|(s, v)| {
-                        let d =
-                            |c: usize| n[0] * v[3 * c] + n[1] * v[3 * c + 1] + n[2] * v[3 * c + 2];
-                        (*s, [d(0), d(1), d(2)])
-                    })
-                    .collect()
-            })
-            .collect();
-        let products: Vec<(Row, f64, f64, [f64; 3])> = (0..out_rows)
+        let y = sender_irradiance(ib, &prev);
+        let products: Vec<Product> = (0..out_rows)
             .into_par_iter()
             .map_init(
-                || {
-                    (
-                        vec![[0.0f32; LINK_DIM]; senders],
-                        Vec::<u32>::new(),
-                        vec![false; senders],
-                    )
-                },
-                |(acc, touched, mark), row_index| {
-                    let i = t.rows[row_index] as usize;
-                    let (ks, kv) = t.row(i);
-                    for (j, k) in ks.iter().zip(kv) {
-                        let j = *j as usize;
-                        if j >= n0 {
-                            continue;
-                        }
-                        for (s, yv) in &y[j] {
-                            let su = *s as usize;
-                            if !mark[su] {
-                                mark[su] = true;
-                                touched.push(*s);
-                            }
-                            let a = &mut acc[su];
-                            for c in 0..3 {
-                                for d in 0..3 {
-                                    a[3 * c + d] += k[3 * c + d] * yv[c];
-                                }
-                            }
-                        }
-                    }
-                    touched.sort_unstable();
-                    let (mut mx, mut sm) = (0.0f64, 0.0f64);
-                    let mut row = Vec::new();
-                    let energy = if row_index < n0 {
-                        row_energy(
-                            ib.basis.normals[row_index],
-                            n0,
-                            touched.iter().map(|&s| (s, &acc[s as usize])),
-                        )
-                    } else {
-                        [0.0; 3]
-                    };
-                    for &s in touched.iter() {
-                        let v = acc[s as usize];
-                        let nrm = link_norm(&v);
-                        mx = mx.max(nrm as f64);
-                        sm += nrm as f64;
-                        // Links between coarsest receivers and coarsest senders are kept
-                        // whatever their size: no coarser level represents them (see
-                        // `refine`'s module docs), so truncating them loses light.
-                        let base = row_index < n0 && (s as usize) < n0 && nrm > 0.0;
-                        if nrm > epsilon || base {
-                            row.push((s, v));
-                        }
-                        acc[s as usize] = [0.0; LINK_DIM];
-                        mark[s as usize] = false;
-                    }
-                    touched.clear();
-                    (row, mx, sm, energy)
-                },
+                || ProductScratch::new(senders),
+                |scratch, row_index| product_row(ib, t, &y, n0, epsilon, scratch, row_index),
             )
             .collect();
-        let mx = products.iter().fold(0.0f64, |m, p| m.max(p.1));
-        let sm: f64 = products.iter().map(|p| p.2).sum();
-        report.max_norm.push(mx);
-        report.sum_norm.push(sm);
-        report
-            .energy
-            .push(products.iter().fold([0.0; 3], |a, p| add3(a, p.3)));
-        report.bounces = b;
-        let rows: Rows = products.into_iter().map(|p| p.0).collect();
-        let kept_energy = rows
-            .iter()
-            .take(n0)
-            .enumerate()
-            .fold([0.0; 3], |a, (j, row)| {
-                add3(
-                    a,
-                    row_energy(ib.basis.normals[j], n0, row.iter().map(|(s, v)| (*s, v))),
-                )
-            });
-        report.kept_energy.push(kept_energy);
+        let rows = record_bounce(ib, n0, b, products, &mut report);
         let kept: usize = rows.iter().map(|r| r.len()).sum();
         report.kept_sum_norm.push(norms(&rows).1);
         on_bounce(b, kept);
@@ -293,6 +176,178 @@ pub fn series(
         prev.truncate(n0);
     }
     (total, report)
+}
+
+/// Largest link norm and sum of link norms of `rows`.
+fn norms(rows: &Rows) -> (f64, f64) {
+    rows.iter()
+        .flatten()
+        .fold((0.0f64, 0.0f64), |(m, s), (_, v)| {
+            let n = link_norm(v) as f64;
+            (m.max(n), s + n)
+        })
+}
+
+/// The first bounce, T itself: its level-0 rows, with its norms and energy in `report`. T's
+/// links are already the kept ones: nothing of the first bounce is truncated here.
+fn first_bounce(
+    ib: &IndexedBasis,
+    t: &ReceiverLinks,
+    n0: usize,
+    report: &mut SeriesReport,
+) -> Rows {
+    let first: Rows = (0..n0)
+        .map(|j| {
+            let (s, v) = t.row(j);
+            s.iter().copied().zip(v.iter().copied()).collect()
+        })
+        .collect();
+    let (m1, s1) = norms(&first);
+    report.max_norm.push(m1);
+    report.sum_norm.push(s1);
+    report.kept_sum_norm.push(s1);
+    let e1 = first.iter().enumerate().fold([0.0; 3], |acc, (j, row)| {
+        add3(
+            acc,
+            row_energy(ib.basis.normals[j], n0, row.iter().map(|(s, v)| (*s, v))),
+        )
+    });
+    report.energy.push(e1);
+    report.kept_energy.push(e1);
+    first
+}
+
+/// `Y[j][s] = n_j . X_{b-1}[j][s]`, per channel: the previous bounce's vector irradiance at
+/// the coarsest receivers as scalar irradiance at the coarsest senders on the same points.
+fn sender_irradiance(ib: &IndexedBasis, prev: &Rows) -> Vec<Vec<(u32, [f32; 3])>> {
+    prev.iter()
+        .enumerate()
+        .map(|(j, row)| {
+            let n = ib.basis.normals[j];
+            row.iter()
+                .map(|(s, v)| {
+                    let d = |c: usize| n[0] * v[3 * c] + n[1] * v[3 * c + 1] + n[2] * v[3 * c + 2];
+                    (*s, [d(0), d(1), d(2)])
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// One row of a bounce: its kept links, largest and summed link norm, and energy (level-0
+/// rows only; see [`SeriesReport::energy`]).
+type Product = (Row, f64, f64, [f64; 3]);
+
+/// A worker's dense accumulator over the senders, the senders it touched, and their marks.
+struct ProductScratch {
+    acc: Vec<[f32; LINK_DIM]>,
+    touched: Vec<u32>,
+    mark: Vec<bool>,
+}
+
+impl ProductScratch {
+    fn new(senders: usize) -> Self {
+        ProductScratch {
+            acc: vec![[0.0f32; LINK_DIM]; senders],
+            touched: Vec::new(),
+            mark: vec![false; senders],
+        }
+    }
+}
+
+/// Row `row_index` of the next bounce, `X_b[i][s] = sum_j K[i][j] Y[j][s]`, truncated below
+/// `epsilon` (the scratch is left cleared).
+fn product_row(
+    ib: &IndexedBasis,
+    t: &ReceiverLinks,
+    y: &[Vec<(u32, [f32; 3])>],
+    n0: usize,
+    epsilon: f32,
+    scratch: &mut ProductScratch,
+    row_index: usize,
+) -> Product {
+    let ProductScratch { acc, touched, mark } = scratch;
+    let i = t.rows[row_index] as usize;
+    let (ks, kv) = t.row(i);
+    for (j, k) in ks.iter().zip(kv) {
+        let j = *j as usize;
+        if j >= n0 {
+            continue;
+        }
+        for (s, yv) in &y[j] {
+            let su = *s as usize;
+            if !mark[su] {
+                mark[su] = true;
+                touched.push(*s);
+            }
+            let a = &mut acc[su];
+            for c in 0..3 {
+                for d in 0..3 {
+                    a[3 * c + d] += k[3 * c + d] * yv[c];
+                }
+            }
+        }
+    }
+    touched.sort_unstable();
+    let (mut mx, mut sm) = (0.0f64, 0.0f64);
+    let mut row = Vec::new();
+    let energy = if row_index < n0 {
+        row_energy(
+            ib.basis.normals[row_index],
+            n0,
+            touched.iter().map(|&s| (s, &acc[s as usize])),
+        )
+    } else {
+        [0.0; 3]
+    };
+    for &s in touched.iter() {
+        let v = acc[s as usize];
+        let nrm = link_norm(&v);
+        mx = mx.max(nrm as f64);
+        sm += nrm as f64;
+        // Links between coarsest receivers and coarsest senders are kept whatever their size:
+        // no coarser level represents them (see `refine`'s module docs), so truncating them
+        // loses light.
+        let base = row_index < n0 && (s as usize) < n0 && nrm > 0.0;
+        if nrm > epsilon || base {
+            row.push((s, v));
+        }
+        acc[s as usize] = [0.0; LINK_DIM];
+        mark[s as usize] = false;
+    }
+    touched.clear();
+    (row, mx, sm, energy)
+}
+
+/// Adds bounce `b`'s norms and energies to `report` and returns its rows.
+fn record_bounce(
+    ib: &IndexedBasis,
+    n0: usize,
+    b: u32,
+    products: Vec<Product>,
+    report: &mut SeriesReport,
+) -> Rows {
+    let mx = products.iter().fold(0.0f64, |m, p| m.max(p.1));
+    let sm: f64 = products.iter().map(|p| p.2).sum();
+    report.max_norm.push(mx);
+    report.sum_norm.push(sm);
+    report
+        .energy
+        .push(products.iter().fold([0.0; 3], |a, p| add3(a, p.3)));
+    report.bounces = b;
+    let rows: Rows = products.into_iter().map(|p| p.0).collect();
+    let kept_energy = rows
+        .iter()
+        .take(n0)
+        .enumerate()
+        .fold([0.0; 3], |a, (j, row)| {
+            add3(
+                a,
+                row_energy(ib.basis.normals[j], n0, row.iter().map(|(s, v)| (*s, v))),
+            )
+        });
+    report.kept_energy.push(kept_energy);
+    rows
 }
 
 /// Sum of two rows sorted by sender.

@@ -1,14 +1,28 @@
-//! Bake parameters: the paper's defaults, overridden by a manifest's `[bake]` table, overridden
-//! by the command line.
+//! Bake parameters: one struct, [`BakeOptions`], that is at once the `bake` command line's
+//! flags (clap), a scene manifest's `[bake]` table and a batch job's table (serde, unknown keys
+//! refused), and what the bake resolves into its basis and transport parameters.
+//!
+//! The layers, highest first: the command line, the batch job, the manifest, the paper's
+//! defaults. [`BakeOptions::or`] puts one layer over another; [`resolve`],
+//! [`resolve_transport`] and [`bounce_policy`] fill in the defaults and check the values.
+//!
+//! A new parameter is one field of [`BakeOptions`] (its doc comment is the flag's help, its
+//! name the flag `--name-with-dashes` and the table key `name_with_underscores`), one line of
+//! [`BakeOptions::or`], and its use in the resolution below.
+
+use std::path::Path;
 
 use mlt_format::meta::{BasisParams, TransportParams};
-use mlt_scenes::BakeSettings;
+use serde::Deserialize;
 
 use crate::error::BakeError;
 use crate::placement::Coarse;
 use crate::transport::{BouncePolicy, DEFAULT_BOUNCE_TOLERANCE};
 
-/// The paper's values (section 2.3, DESIGN.md).
+/// The paper's values (section 2.3): `R_fine = R_coarse / 2^l`, the disk radius factors
+/// `C_coarse` and `C_fine` (Eq. 11), the dart thrower's miss limit and the harmonic mean
+/// distance test (rays, range in radii, rejection threshold), the importance particles'
+/// path length and the first bounces that deposit no candidate.
 pub const DEFAULT_LEVELS: u32 = 6;
 pub const DEFAULT_COARSE_COUNT: u32 = 339;
 pub const C_COARSE: f32 = 1.5;
@@ -30,72 +44,219 @@ pub const DEFAULT_GATHER_RAYS: u32 = 256;
 /// More levels than this would need more than 2^(2*16) points per coarse point.
 pub const MAX_LEVELS: u32 = 16;
 
-/// What the user asked for; `None` means "the manifest's value, else the default".
-#[derive(Clone, Debug, Default)]
+/// The bake's parameters as asked for; `None` (or `false`) means "the next layer's value, else
+/// the default". The doc comments are the command line's help.
+#[derive(Clone, Debug, Default, PartialEq, clap::Args, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct BakeOptions {
+    /// Number of hierarchy levels (paper: 6).
+    #[arg(long)]
     pub receiver_levels: Option<u32>,
+    /// Choose R_coarse so that level 0 has about this many points (paper's Sponza: 339).
+    #[arg(long, conflicts_with = "coarse_radius")]
     pub coarse_count: Option<u32>,
+    /// Level-0 Poisson-disk radius R_coarse in scene units (after the manifest's scale).
+    #[arg(long)]
     pub coarse_radius: Option<f32>,
+    /// Random seed; the same seed and inputs give a byte-identical file.
+    #[arg(long)]
     pub seed: Option<u64>,
-    /// Override the dart thrower's consecutive-miss limit (paper: 2000).
-    pub max_misses: Option<u32>,
     /// Link threshold epsilon (paper: 0.025).
+    #[arg(long)]
     pub epsilon: Option<f32>,
-    /// Truncation threshold of bounces 2 and later (default: epsilon, as the paper).
+    /// Truncation threshold of bounces 2 and later (default: epsilon, as the paper; a smaller
+    /// value keeps multi-bounce energy that epsilon would drop, see the bounce norms).
+    #[arg(long)]
     pub bounce_epsilon: Option<f32>,
-    /// Sender levels (paper: 3; at most the receiver levels).
+    /// Sender levels, the coarsest of the receiver levels (paper: 3).
+    #[arg(long)]
     pub sender_levels: Option<u32>,
-    /// Most bounces of the Neumann series (paper: 4); with `auto_bounces`, the cap.
+    /// Most bounces of the Neumann series (paper: 4); with `auto_bounces`, the cap. On the
+    /// command line it is `--bounces N` or `--bounces auto:N` ([`BakeOptions::bounce_flag`]).
+    #[arg(skip)]
     pub bounces: Option<u32>,
     /// Choose the number of bounces from the spectral-radius estimate so that the series
     /// leaves out at most `bounce_tolerance` of the indirect light (capped by `bounces`,
-    /// default [`DEFAULT_AUTO_BOUNCE_CAP`]; the manifest's count is then ignored).
+    /// default [`DEFAULT_AUTO_BOUNCE_CAP`]; a lower layer's count is then ignored).
+    #[arg(skip)]
+    #[serde(default)]
     pub auto_bounces: bool,
-    /// Fraction of the indirect light the series may leave out (default 1 %): the target of
-    /// `auto_bounces`, the warning threshold of a fixed count.
+    /// Bounces of the Neumann series S = T + T^2 + ...: a count (paper: 4), or `auto` to
+    /// choose it from the spectral-radius estimate so that the bounces left out carry at
+    /// most --bounce-tolerance of the indirect light (`auto:N` caps it at N, default 1000).
+    #[arg(long = "bounces", value_name = "N|auto|auto:N", value_parser = parse_bounces)]
+    #[serde(skip)]
+    pub bounce_flag: Option<BounceChoice>,
+    /// Fraction of the indirect light the series may leave out (default 0.01): the target of
+    /// --bounces auto, and the threshold above which a fixed count is warned about.
+    #[arg(long)]
     pub bounce_tolerance: Option<f64>,
-    /// Rays per receiver gather.
+    /// Rays per receiver gather (Eq. 16).
+    #[arg(long)]
     pub gather_rays: Option<u32>,
-    /// Bounces 2 and later on every refined receiver, not only the coarsest.
+    /// Compute bounces 2 and later on every refined receiver, not only the coarsest (the
+    /// paper's choice; more accurate on curved geometry, slower).
+    #[arg(long)]
+    #[serde(default)]
     pub bounces_on_all_receivers: bool,
     /// Place the basis only; compute no transport operator.
+    #[arg(long)]
+    #[serde(default)]
     pub basis_only: bool,
-    /// Compute only shard `(index, count)` of T (a shard file for `bake merge`).
+    /// Dart thrower's consecutive-miss limit (paper: 2000).
+    #[arg(long)]
+    pub max_misses: Option<u32>,
+    /// Compute shard I of N of the transport (I from 0) into a shard file for `bake merge`.
+    #[arg(long, value_name = "I/N", value_parser = parse_shard)]
+    #[serde(skip)]
     pub shard: Option<(u32, u32)>,
-    /// Store wall-clock timings in the file (makes it differ from run to run).
+    /// Store wall-clock timings in the file (the file then differs from run to run).
+    #[arg(long)]
+    #[serde(skip)]
     pub record_timings: bool,
-    /// zstd-compress the file's sections.
+    /// zstd-compress the file's sections (smaller; readers decompress instead of mapping).
+    #[arg(long)]
+    #[serde(skip)]
     pub compress: bool,
 }
 
-/// Resolves the parameters, checking each.
-pub fn resolve(
-    opts: &BakeOptions,
-    scene: &BakeSettings,
-) -> Result<(BasisParams, Coarse), BakeError> {
+/// A choice of bounce count: `N` (`auto: false, count: Some(N)`), `auto` or `auto:N`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BounceChoice {
+    pub auto: bool,
+    pub count: Option<u32>,
+}
+
+impl BakeOptions {
+    /// These options over `lower`: each value set here wins, the others come from `lower`.
+    /// Flags are on when either layer sets them. The bounce choice (count and `auto`) and the
+    /// coarse level's size (count or radius) each come whole from one layer, so that
+    /// `--bounces auto` does not take a manifest's fixed count as its cap, nor a coarse radius
+    /// meet a lower layer's coarse count.
+    pub fn or(&self, lower: &BakeOptions) -> BakeOptions {
+        let bounce = self.bounce_choice().or(lower.bounce_choice());
+        let coarse_set = self.coarse_count.is_some() || self.coarse_radius.is_some();
+        let coarse = if coarse_set { self } else { lower };
+        BakeOptions {
+            receiver_levels: self.receiver_levels.or(lower.receiver_levels),
+            coarse_count: coarse.coarse_count,
+            coarse_radius: coarse.coarse_radius,
+            seed: self.seed.or(lower.seed),
+            epsilon: self.epsilon.or(lower.epsilon),
+            bounce_epsilon: self.bounce_epsilon.or(lower.bounce_epsilon),
+            sender_levels: self.sender_levels.or(lower.sender_levels),
+            bounces: bounce.and_then(|b| b.count),
+            auto_bounces: bounce.is_some_and(|b| b.auto),
+            bounce_flag: None,
+            bounce_tolerance: self.bounce_tolerance.or(lower.bounce_tolerance),
+            gather_rays: self.gather_rays.or(lower.gather_rays),
+            bounces_on_all_receivers: self.bounces_on_all_receivers
+                || lower.bounces_on_all_receivers,
+            basis_only: self.basis_only || lower.basis_only,
+            max_misses: self.max_misses.or(lower.max_misses),
+            shard: self.shard.or(lower.shard),
+            record_timings: self.record_timings || lower.record_timings,
+            compress: self.compress || lower.compress,
+        }
+    }
+
+    /// The bounce choice of this layer, if it makes one: the command line's `--bounces`, else
+    /// the `auto_bounces` and `bounces` fields.
+    pub fn bounce_choice(&self) -> Option<BounceChoice> {
+        if self.bounce_flag.is_some() {
+            return self.bounce_flag;
+        }
+        (self.auto_bounces || self.bounces.is_some()).then_some(BounceChoice {
+            auto: self.auto_bounces,
+            count: self.bounces,
+        })
+    }
+
+    /// Parses a manifest's `[bake]` table or a batch job's table (`what` names it in errors,
+    /// `path` is its file). Unknown keys and ill-typed values are errors naming both.
+    pub fn from_table(table: toml::Table, path: &Path, what: &str) -> Result<Self, BakeError> {
+        let bad = |message: String| BakeError::Options {
+            path: path.to_path_buf(),
+            message: format!("{what}: {message}"),
+        };
+        let opts: BakeOptions = table
+            .try_into()
+            .map_err(|e: toml::de::Error| bad(e.to_string().trim_end().to_string()))?;
+        if opts.coarse_count.is_some() && opts.coarse_radius.is_some() {
+            return Err(bad("sets both coarse_count and coarse_radius".into()));
+        }
+        Ok(opts)
+    }
+}
+
+/// The options of a scene's manifest (its `[bake]` table; none for other scenes).
+pub fn manifest_options(scene: &mlt_scenes::Scene) -> Result<BakeOptions, BakeError> {
+    if scene.bake.is_empty() {
+        return Ok(BakeOptions::default());
+    }
+    BakeOptions::from_table(scene.bake.clone(), Path::new(&scene.source), "[bake]")
+}
+
+/// `--bounces`: a count or `auto[:cap]`.
+pub fn parse_bounces(s: &str) -> Result<BounceChoice, String> {
+    let s = s.trim();
+    let count = |t: &str| {
+        t.trim()
+            .parse::<u32>()
+            .map_err(|_| format!("'{t}' is not a bounce count (a whole number >= 1)"))
+    };
+    match s.strip_prefix("auto") {
+        Some("") => Ok(BounceChoice {
+            auto: true,
+            count: None,
+        }),
+        Some(rest) => match rest.strip_prefix(':') {
+            Some(cap) => Ok(BounceChoice {
+                auto: true,
+                count: Some(count(cap)?),
+            }),
+            None => Err(format!("'{s}' is not N, auto or auto:N")),
+        },
+        None => Ok(BounceChoice {
+            auto: false,
+            count: Some(count(s)?),
+        }),
+    }
+}
+
+/// `--shard I/N` with `0 <= I < N`.
+pub fn parse_shard(s: &str) -> Result<(u32, u32), String> {
+    let (i, n) = s
+        .split_once('/')
+        .ok_or_else(|| format!("'{s}' is not I/N"))?;
+    let i: u32 = i
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{i}' is not a shard index"))?;
+    let n: u32 = n
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{n}' is not a shard count"))?;
+    if n == 0 || i >= n {
+        return Err(format!("shard {i}/{n}: need 0 <= I < N"));
+    }
+    Ok((i, n))
+}
+
+/// Resolves the basis parameters (the options over the defaults), checking each.
+pub fn resolve(opts: &BakeOptions) -> Result<(BasisParams, Coarse), BakeError> {
     let bad = |m: String| Err(BakeError::InvalidParameter(m));
-    let levels = opts
-        .receiver_levels
-        .or(scene.receiver_levels)
-        .unwrap_or(DEFAULT_LEVELS);
+    let levels = opts.receiver_levels.unwrap_or(DEFAULT_LEVELS);
     if !(1..=MAX_LEVELS).contains(&levels) {
         return bad(format!(
             "receiver levels must be 1..={MAX_LEVELS}, got {levels}"
         ));
     }
-    // The command line's choice of count or radius wins over the manifest's.
     let coarse = match (opts.coarse_count, opts.coarse_radius) {
         (Some(_), Some(_)) => return bad("give a coarse count or a coarse radius, not both".into()),
         (Some(k), None) => Coarse::Count(k),
         (None, Some(r)) => Coarse::Radius(r),
-        (None, None) => match (scene.coarse_count, scene.coarse_radius) {
-            (Some(_), Some(_)) => {
-                return bad("the manifest sets both coarse_count and coarse_radius".into())
-            }
-            (Some(k), None) => Coarse::Count(k),
-            (None, Some(r)) => Coarse::Radius(r),
-            (None, None) => Coarse::Count(DEFAULT_COARSE_COUNT),
-        },
+        (None, None) => Coarse::Count(DEFAULT_COARSE_COUNT),
     };
     match coarse {
         Coarse::Count(0) => return bad("the coarse count must be at least 1".into()),
@@ -130,36 +291,29 @@ pub fn resolve(
             hmd_reject: HMD_REJECT,
             particle_bounces: PARTICLE_BOUNCES,
             skipped_bounces: SKIPPED_BOUNCES,
-            seed: opts.seed.or(scene.seed).unwrap_or(1),
+            seed: opts.seed.unwrap_or(1),
         },
         coarse,
     ))
 }
 
-/// Resolves the transport parameters (command line, else manifest, else the paper's).
-pub fn resolve_transport(
-    opts: &BakeOptions,
-    scene: &BakeSettings,
-    basis: &BasisParams,
-) -> TransportParams {
-    let epsilon = opts.epsilon.or(scene.epsilon).unwrap_or(DEFAULT_EPSILON);
+/// Resolves the transport parameters (the options over the paper's defaults).
+pub fn resolve_transport(opts: &BakeOptions, basis: &BasisParams) -> TransportParams {
+    let epsilon = opts.epsilon.unwrap_or(DEFAULT_EPSILON);
+    let bounce = opts.bounce_choice();
     TransportParams {
         epsilon,
         bounce_epsilon: opts.bounce_epsilon.unwrap_or(epsilon),
         sender_levels: opts
             .sender_levels
-            .or(scene.sender_levels)
             .unwrap_or(DEFAULT_SENDER_LEVELS.min(basis.levels)),
         receiver_levels: basis.levels,
-        bounces: if opts.auto_bounces {
-            opts.bounces.unwrap_or(DEFAULT_AUTO_BOUNCE_CAP)
-        } else {
-            opts.bounces.or(scene.bounces).unwrap_or(DEFAULT_BOUNCES)
+        bounces: match bounce {
+            Some(BounceChoice { auto: true, count }) => count.unwrap_or(DEFAULT_AUTO_BOUNCE_CAP),
+            Some(BounceChoice { auto: false, count }) => count.unwrap_or(DEFAULT_BOUNCES),
+            None => DEFAULT_BOUNCES,
         },
-        gather_rays: opts
-            .gather_rays
-            .or(scene.gather_rays)
-            .unwrap_or(DEFAULT_GATHER_RAYS),
+        gather_rays: opts.gather_rays.unwrap_or(DEFAULT_GATHER_RAYS),
         bounces_on_all_receivers: opts.bounces_on_all_receivers,
         seed: basis.seed,
     }
@@ -174,7 +328,7 @@ pub fn bounce_policy(opts: &BakeOptions) -> Result<BouncePolicy, BakeError> {
         )));
     }
     Ok(BouncePolicy {
-        auto: opts.auto_bounces,
+        auto: opts.bounce_choice().is_some_and(|b| b.auto),
         tolerance,
     })
 }
@@ -182,30 +336,141 @@ pub fn bounce_policy(opts: &BakeOptions) -> Result<BouncePolicy, BakeError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use clap::Parser;
+
+    /// The options as the `bake` command flattens them.
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        opts: BakeOptions,
+    }
+
+    fn cli(args: &[&str]) -> BakeOptions {
+        let mut all = vec!["bake"];
+        all.extend_from_slice(args);
+        Cli::try_parse_from(all).unwrap().opts
+    }
+
+    fn table(text: &str) -> Result<BakeOptions, BakeError> {
+        BakeOptions::from_table(toml::from_str(text).unwrap(), Path::new("m.toml"), "[bake]")
+    }
 
     #[test]
-    fn command_line_overrides_manifest_overrides_defaults() {
-        let scene = BakeSettings {
-            receiver_levels: Some(4),
-            coarse_radius: Some(0.5),
-            ..Default::default()
-        };
-        let (p, c) = resolve(&BakeOptions::default(), &scene).unwrap();
-        assert_eq!((p.levels, c), (4, Coarse::Radius(0.5)));
-        let opts = BakeOptions {
-            receiver_levels: Some(2),
-            coarse_count: Some(10),
-            ..Default::default()
-        };
-        let (p, c) = resolve(&opts, &scene).unwrap();
+    fn command_line_overrides_job_overrides_manifest_overrides_defaults() {
+        let manifest = table(
+            "receiver_levels = 4\ncoarse_radius = 0.5\nseed = 7\nepsilon = 0.1\nbounces = 6\n",
+        )
+        .unwrap();
+        let job = table("receiver_levels = 3\nseed = 8\nauto_bounces = true\n").unwrap();
+        let command = cli(&["--receiver-levels", "2", "--coarse-count", "10"]);
+        let opts = command.or(&job).or(&manifest);
+        let (p, c) = resolve(&opts).unwrap();
+        let t = resolve_transport(&opts, &p);
+        // Command line: levels and the coarse count (which displaces the manifest's radius).
         assert_eq!((p.levels, c), (2, Coarse::Count(10)));
-        let (p, c) = resolve(&BakeOptions::default(), &BakeSettings::default()).unwrap();
-        assert_eq!((p.levels, c), (6, Coarse::Count(339)));
+        // Job: the seed, and `auto` without a cap (the manifest's count is not the cap).
+        assert_eq!(p.seed, 8);
+        assert_eq!(t.bounces, DEFAULT_AUTO_BOUNCE_CAP);
+        assert!(bounce_policy(&opts).unwrap().auto);
+        // Manifest: epsilon; defaults for the rest.
+        assert_eq!(t.epsilon, 0.1);
+        assert_eq!(t.gather_rays, DEFAULT_GATHER_RAYS);
+        assert_eq!(t.sender_levels, 2);
+
+        let (p, c) = resolve(&BakeOptions::default().or(&manifest)).unwrap();
+        assert_eq!((p.levels, c, p.seed), (4, Coarse::Radius(0.5), 7));
+        let (p, c) = resolve(&BakeOptions::default()).unwrap();
+        assert_eq!((p.levels, c, p.seed), (6, Coarse::Count(339), 1));
+        // A fixed count on the command line turns a lower layer's `auto` off.
+        let fixed = cli(&["--bounces", "5"]).or(&job);
+        assert_eq!(resolve_transport(&fixed, &p).bounces, 5);
+        assert!(!bounce_policy(&fixed).unwrap().auto);
+    }
+
+    #[test]
+    fn every_flag_parses() {
+        let o = cli(&[
+            "--receiver-levels=3",
+            "--coarse-radius=0.25",
+            "--seed=9",
+            "--epsilon=0.01",
+            "--bounce-epsilon=0.001",
+            "--sender-levels=2",
+            "--bounces=auto:12",
+            "--bounce-tolerance=0.05",
+            "--gather-rays=64",
+            "--bounces-on-all-receivers",
+            "--basis-only",
+            "--max-misses=100",
+            "--shard=1/3",
+            "--record-timings",
+            "--compress",
+        ])
+        .or(&BakeOptions::default());
+        let expected = BakeOptions {
+            receiver_levels: Some(3),
+            coarse_radius: Some(0.25),
+            seed: Some(9),
+            epsilon: Some(0.01),
+            bounce_epsilon: Some(0.001),
+            sender_levels: Some(2),
+            bounces: Some(12),
+            auto_bounces: true,
+            bounce_tolerance: Some(0.05),
+            gather_rays: Some(64),
+            bounces_on_all_receivers: true,
+            basis_only: true,
+            max_misses: Some(100),
+            shard: Some((1, 3)),
+            record_timings: true,
+            compress: true,
+            ..Default::default()
+        };
+        assert_eq!(o, expected);
+        assert_eq!(cli(&["--coarse-count", "5"]).coarse_count, Some(5));
+        for (arg, auto, count) in [("7", false, Some(7)), ("auto", true, None)] {
+            let o = cli(&["--bounces", arg]).or(&BakeOptions::default());
+            assert_eq!((o.auto_bounces, o.bounces), (auto, count), "{arg}");
+        }
+        for bad in [
+            &["--bounces", "auto:x"][..],
+            &["--shard", "3/3"],
+            &["--coarse-count", "5", "--coarse-radius", "1"],
+            &["--output", "x"],
+        ] {
+            assert!(
+                Cli::try_parse_from(["bake"].iter().chain(bad)).is_err(),
+                "{bad:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn tables_take_every_key_and_refuse_unknown_ones_naming_the_file() {
+        let o = table(
+            "receiver_levels = 3\nsender_levels = 2\ncoarse_count = 30\nseed = 4\nepsilon = 0.001\n\
+             bounce_epsilon = 0.0001\nbounces = 24\nauto_bounces = true\nbounce_tolerance = 0.02\n\
+             gather_rays = 128\nmax_misses = 50\nbounces_on_all_receivers = true\nbasis_only = true\n",
+        )
+        .unwrap();
+        assert_eq!(
+            (o.bounces, o.auto_bounces, o.coarse_count, o.basis_only),
+            (Some(24), true, Some(30), true)
+        );
+        for (text, needle) in [
+            ("receiver_level = 3", "receiver_level"),
+            ("shard = [0, 2]", "shard"),
+            ("compress = true", "compress"),
+            ("bounces = \"many\"", "bounces"),
+            ("coarse_count = 3\ncoarse_radius = 1.0", "coarse_radius"),
+        ] {
+            let e = table(text).unwrap_err().to_string();
+            assert!(e.contains("m.toml") && e.contains(needle), "{text}: {e}");
+        }
     }
 
     #[test]
     fn bad_values_are_refused_with_a_reason() {
-        let s = BakeSettings::default();
         for opts in [
             BakeOptions {
                 receiver_levels: Some(0),
@@ -233,7 +498,7 @@ mod tests {
                 ..Default::default()
             },
         ] {
-            let e = resolve(&opts, &s).unwrap_err();
+            let e = resolve(&opts).unwrap_err();
             assert!(!e.to_string().is_empty());
         }
     }

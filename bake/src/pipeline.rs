@@ -7,14 +7,15 @@ use mlt_format::meta::{
     BasisParams, BasisStats, CameraInfo, LightInfo, Meta, SceneInfo, Timings, TransportParams,
     TransportTimings,
 };
+use mlt_format::shard::ShardSection;
 use mlt_format::shepard::MIN_WEIGHT_SUM;
-use mlt_format::{BakeContents, IndexedBasis};
-use mlt_scenes::{LightKind, Scene, SpotFalloff};
+use mlt_format::{BakeContents, IndexedBasis, Transport};
+use mlt_scenes::{LightKind, RayCaster, Scene, SpotFalloff};
 
 use crate::candidates::CandidatePool;
 use crate::error::BakeError;
 use crate::observer::Observer;
-use crate::params::{bounce_policy, resolve, resolve_transport, BakeOptions};
+use crate::params::{bounce_policy, manifest_options, resolve, resolve_transport, BakeOptions};
 use crate::placement::{find_coarse_radius, place, Coarse, LevelPlan};
 use crate::poisson::DartSettings;
 use crate::rng::mix64;
@@ -29,7 +30,7 @@ pub fn tool_version() -> String {
 /// What a bake produced.
 pub struct BakeOutput {
     pub contents: BakeContents,
-    /// Always measured; stored in the file only with `record_timings`.
+    /// Always taken; stored in the file only with `record_timings`.
     pub timings: Timings,
     pub transport_timings: Option<TransportTimings>,
     pub warnings: Vec<String>,
@@ -39,10 +40,35 @@ pub struct BakeOutput {
 /// scene's identity and content hash (mesh, material and texture bytes, manifest), its default
 /// camera and light, and every resolved parameter. Equal keys mean byte-identical files.
 pub fn input_key(scene: &Scene, opts: &BakeOptions) -> Result<u64, BakeError> {
-    let (params, _) = resolve(opts, &scene.bake)?;
-    let transport = resolve_transport(opts, &scene.bake, &params);
-    let policy = bounce_policy(opts)?;
-    Ok(key_of(scene, opts, &params, &transport, &policy))
+    Ok(Resolved::new(scene, opts)?.key)
+}
+
+/// The options over the scene manifest's, resolved and checked, with the input key.
+struct Resolved {
+    opts: BakeOptions,
+    params: BasisParams,
+    coarse: Coarse,
+    transport: TransportParams,
+    policy: BouncePolicy,
+    key: u64,
+}
+
+impl Resolved {
+    fn new(scene: &Scene, opts: &BakeOptions) -> Result<Resolved, BakeError> {
+        let opts = opts.or(&manifest_options(scene)?);
+        let (params, coarse) = resolve(&opts)?;
+        let transport = resolve_transport(&opts, &params);
+        let policy = bounce_policy(&opts)?;
+        let key = key_of(scene, &opts, &params, &transport, &policy);
+        Ok(Resolved {
+            opts,
+            params,
+            coarse,
+            transport,
+            policy,
+            key,
+        })
+    }
 }
 
 /// [`input_key`] from parameters already resolved.
@@ -74,7 +100,8 @@ fn key_of(
     xxhash_rust::xxh3::xxh3_64(description.to_string().as_bytes())
 }
 
-/// Bakes a loaded scene (in the current rayon pool; results do not depend on its size).
+/// Bakes a loaded scene (in the current rayon pool; results do not depend on its size). The
+/// options go over the scene manifest's `[bake]` table.
 pub fn bake_scene(
     scene: &Scene,
     opts: &BakeOptions,
@@ -89,10 +116,14 @@ pub fn bake_scene(
             )));
         }
     }
-    let (mut params, coarse) = resolve(opts, &scene.bake)?;
-    let transport_params = resolve_transport(opts, &scene.bake, &params);
-    let policy = bounce_policy(opts)?;
-    let key = key_of(scene, opts, &params, &transport_params, &policy);
+    let Resolved {
+        opts,
+        mut params,
+        coarse,
+        transport: transport_params,
+        policy,
+        key,
+    } = Resolved::new(scene, opts)?;
     if !opts.basis_only {
         // Refuse bad transport parameters before spending time on the basis.
         check_params(&transport_params, params.levels)?;
@@ -115,52 +146,162 @@ pub fn bake_scene(
         &format!("{} triangles", scene.triangle_count()),
     );
 
-    obs.stage("candidates");
-    let mut pool = CandidatePool::new(
+    let basis = place_basis(
+        scene,
         caster.as_ref(),
-        viewpoint,
-        params.seed,
-        params.particle_bounces,
-        params.skipped_bounces,
-    );
-    // The first batch; the dart thrower grows the pool lazily from here.
-    while pool.candidates.is_empty() {
-        if pool.grow() == 0 && pool.particles >= 1 << 16 {
-            if pool.hits == 0 || params.skipped_bounces == 0 {
-                return Err(BakeError::NoCandidates {
-                    scene: scene.source.clone(),
-                    viewpoint: viewpoint.to_array(),
-                });
-            }
-            // An open scene (a single quad, say): particles reach surfaces but escape before
-            // the skipped bounces end. Deposit from the first hit instead, and say so.
-            let w = format!(
-                "no particle path survived the first {} bounces (an open scene?); candidates are deposited from the first bounce on",
-                params.skipped_bounces
-            );
-            obs.warn(&w);
-            warnings.push(w);
-            params.skipped_bounces = 0;
-            pool = CandidatePool::new(
-                caster.as_ref(),
-                viewpoint,
-                params.seed,
-                params.particle_bounces,
-                0,
+        &mut params,
+        coarse,
+        obs,
+        &mut warnings,
+    )?;
+
+    let stage = transport_stage(
+        basis.ib,
+        caster.as_ref(),
+        &opts,
+        transport_params,
+        policy,
+        key,
+        obs,
+    )?;
+    warnings.extend(stage.warnings);
+
+    let timings = Timings {
+        load_s: 0.0,
+        bvh_s,
+        candidates_s: basis.candidates_s,
+        poisson_s: basis.poisson_s,
+        rtrees_s: basis.rtrees_s,
+        write_s: 0.0,
+        total_s: t_total.elapsed().as_secs_f64(),
+        threads: rayon::current_num_threads() as u32,
+    };
+    let meta = Meta {
+        tool: tool_version(),
+        scene: scene_info(scene, caster.as_ref()),
+        camera: CameraInfo {
+            position: scene.camera.position,
+            target: scene.camera.target,
+            up: scene.camera.up,
+            fovy_deg: scene.camera.fovy_deg,
+            width: scene.camera.width,
+            height: scene.camera.height,
+        },
+        light: light_info(scene),
+        params,
+        stats: basis.stats,
+        timings: opts.record_timings.then_some(timings.clone()),
+    };
+    Ok(BakeOutput {
+        contents: BakeContents {
+            meta,
+            basis: stage.ib,
+            transport: stage.transport,
+            input_key: stage.file_key,
+            shard: stage.shard,
+        },
+        timings,
+        transport_timings: stage.timings,
+        warnings,
+    })
+}
+
+/// What the transport stage gave: the basis to store (finer levels without a link of S left
+/// out), S or a shard of T, the file's input key, and the stage's timings and warnings.
+struct TransportStage {
+    ib: IndexedBasis,
+    transport: Option<Transport>,
+    shard: Option<ShardSection>,
+    file_key: u64,
+    timings: Option<TransportTimings>,
+    warnings: Vec<String>,
+}
+
+/// The transport (section 3): none for a basis-only bake, T's rows of one shard for a shard
+/// bake (whose file key mixes in the shard), else S.
+fn transport_stage(
+    mut ib: IndexedBasis,
+    caster: &dyn RayCaster,
+    opts: &BakeOptions,
+    transport_params: TransportParams,
+    policy: BouncePolicy,
+    key: u64,
+    obs: &dyn Observer,
+) -> Result<TransportStage, BakeError> {
+    let mut transport = None;
+    let mut shard = None;
+    let mut file_key = key;
+    let mut timings = None;
+    let mut warnings = Vec::new();
+    if let (false, Some((index, count))) = (opts.basis_only, opts.shard) {
+        let owner = owners(&ib, count);
+        let need = needed(&ib, &owner, index);
+        let (t, _, _) = refine_t(&ib, caster, &transport_params, Some(&need), obs);
+        shard = Some(shard_section(
+            &ib,
+            &t,
+            &owner,
+            (index, count),
+            key,
+            transport_params,
+            policy,
+        ));
+        file_key = mix64(key ^ mix64(((index as u64) << 32) | count as u64));
+    } else if !opts.basis_only {
+        let out = compute_transport(&ib, caster, transport_params, policy, obs)?;
+        warnings = out.warnings;
+        if out.levels_stored < ib.levels() {
+            let placed = ib.levels();
+            ib = trim_levels(&ib, out.levels_stored)?;
+            obs.done(
+                "levels left out",
+                0.0,
+                &format!(
+                    "receiver levels {}..{placed} hold no link of S and are not stored",
+                    out.levels_stored
+                ),
             );
         }
+        let mut t = out.transport;
+        if opts.record_timings {
+            t.meta.timings = Some(out.timings.clone());
+        }
+        timings = Some(out.timings);
+        transport = Some(t);
     }
-    let first_batch_s = pool.seconds;
-    obs.done(
-        "candidates",
-        first_batch_s,
-        &format!(
-            "{} candidates from {} particles",
-            pool.candidates.len(),
-            pool.particles
-        ),
-    );
+    Ok(TransportStage {
+        ib,
+        transport,
+        shard,
+        file_key,
+        timings,
+        warnings,
+    })
+}
 
+/// The placed and indexed basis, with its statistics and timings.
+struct PlacedBasis {
+    ib: IndexedBasis,
+    stats: BasisStats,
+    candidates_s: f64,
+    poisson_s: f64,
+    rtrees_s: f64,
+}
+
+/// Point placement (section 2.3): importance candidates from the viewpoint, the coarse radius,
+/// the levels' Poisson-disk sets, and their R-trees. Sets `params.coarse_radius` (and
+/// `skipped_bounces` for an open scene).
+fn place_basis(
+    scene: &Scene,
+    caster: &dyn RayCaster,
+    params: &mut BasisParams,
+    coarse: Coarse,
+    obs: &dyn Observer,
+    warnings: &mut Vec<String>,
+) -> Result<PlacedBasis, BakeError> {
+    let viewpoint = scene.viewpoint;
+    let mut pool = first_candidates(scene, caster, params, obs, warnings)?;
+    let first_batch_s = pool.seconds;
     let settings = DartSettings {
         max_misses: params.max_misses,
         hmd_rays: params.hmd_rays,
@@ -173,7 +314,7 @@ pub fn bake_scene(
     let r_coarse = match coarse {
         Coarse::Radius(r) => r,
         Coarse::Count(k) => {
-            let (r, n) = find_coarse_radius(&mut pool, caster.as_ref(), k, &settings);
+            let (r, n) = find_coarse_radius(&mut pool, caster, k, &settings);
             obs.done(
                 "coarse radius search",
                 t.elapsed().as_secs_f64(),
@@ -186,7 +327,7 @@ pub fn bake_scene(
     let levels = params.levels as usize;
     let placement = place(
         &mut pool,
-        caster.as_ref(),
+        caster,
         LevelPlan {
             levels,
             r_coarse,
@@ -225,12 +366,12 @@ pub fn bake_scene(
 
     obs.stage("r-trees");
     let t = Instant::now();
-    let mut ib = IndexedBasis::build(placement.basis)?;
+    let ib = IndexedBasis::build(placement.basis)?;
     let rtrees_s = t.elapsed().as_secs_f64();
     let rtree_nodes: u64 = ib.trees.iter().map(|t| t.node_count() as u64).sum();
     obs.done("r-trees", rtrees_s, &format!("{rtree_nodes} nodes"));
 
-    if let Some(w) = light_warning(scene, caster.as_ref()) {
+    if let Some(w) = light_warning(scene, caster) {
         obs.warn(&w);
         warnings.push(w);
     }
@@ -244,59 +385,6 @@ pub fn bake_scene(
         obs.warn(&w);
         warnings.push(w);
     }
-
-    let mut transport = None;
-    let mut transport_timings = None;
-    let mut shard = None;
-    let mut file_key = key;
-    if let (false, Some((index, count))) = (opts.basis_only, opts.shard) {
-        let owner = owners(&ib, count);
-        let need = needed(&ib, &owner, index);
-        let (t, _, _) = refine_t(&ib, caster.as_ref(), &transport_params, Some(&need), obs);
-        shard = Some(shard_section(
-            &ib,
-            &t,
-            &owner,
-            (index, count),
-            key,
-            transport_params,
-            policy,
-        ));
-        file_key = mix64(key ^ mix64(((index as u64) << 32) | count as u64));
-    } else if !opts.basis_only {
-        let out = compute_transport(&ib, caster.as_ref(), transport_params, policy, obs)?;
-        warnings.extend(out.warnings);
-        if out.levels_stored < ib.levels() {
-            let placed = ib.levels();
-            ib = trim_levels(&ib, out.levels_stored)?;
-            obs.done(
-                "levels left out",
-                0.0,
-                &format!(
-                    "receiver levels {}..{placed} hold no link of S and are not stored",
-                    out.levels_stored
-                ),
-            );
-        }
-        let mut t = out.transport;
-        if opts.record_timings {
-            t.meta.timings = Some(out.timings.clone());
-        }
-        transport_timings = Some(out.timings);
-        transport = Some(t);
-    }
-
-    let (bounds_min, bounds_max) = caster.bounds();
-    let timings = Timings {
-        load_s: 0.0,
-        bvh_s,
-        candidates_s,
-        poisson_s,
-        rtrees_s,
-        write_s: 0.0,
-        total_s: t_total.elapsed().as_secs_f64(),
-        threads: rayon::current_num_threads() as u32,
-    };
     let stats = BasisStats {
         particles: pool.particles,
         candidates: pool.candidates.len() as u64,
@@ -306,46 +394,81 @@ pub fn bake_scene(
         rtree_nodes,
         points_without_coarser_support: unsupported,
     };
-    let meta = Meta {
-        tool: tool_version(),
-        scene: SceneInfo {
-            source: scene.source.clone(),
-            content_hash: scene.content_hash,
-            triangles: scene.triangle_count(),
-            degenerate_dropped: match &scene.geometry {
-                mlt_scenes::Geometry::Mesh(m) => m.degenerate_dropped,
-                _ => 0,
-            },
-            scale: scene.scale,
-            viewpoint: viewpoint.to_array(),
-            bounds_min: bounds_min.to_array(),
-            bounds_max: bounds_max.to_array(),
-        },
-        camera: CameraInfo {
-            position: scene.camera.position,
-            target: scene.camera.target,
-            up: scene.camera.up,
-            fovy_deg: scene.camera.fovy_deg,
-            width: scene.camera.width,
-            height: scene.camera.height,
-        },
-        light: light_info(scene),
-        params,
+    Ok(PlacedBasis {
+        ib,
         stats,
-        timings: opts.record_timings.then_some(timings.clone()),
-    };
-    Ok(BakeOutput {
-        contents: BakeContents {
-            meta,
-            basis: ib,
-            transport,
-            input_key: file_key,
-            shard,
-        },
-        timings,
-        transport_timings,
-        warnings,
+        candidates_s,
+        poisson_s,
+        rtrees_s,
     })
+}
+
+/// The candidate pool with its first batch of importance particles; the dart thrower grows it
+/// lazily from there. An open scene whose particles all escape before the skipped bounces end
+/// gets candidates from the first hit on (`params.skipped_bounces` set to 0, with a warning).
+fn first_candidates<'a>(
+    scene: &Scene,
+    caster: &'a dyn RayCaster,
+    params: &mut BasisParams,
+    obs: &dyn Observer,
+    warnings: &mut Vec<String>,
+) -> Result<CandidatePool<'a>, BakeError> {
+    let viewpoint = scene.viewpoint;
+    obs.stage("candidates");
+    let mut pool = CandidatePool::new(
+        caster,
+        viewpoint,
+        params.seed,
+        params.particle_bounces,
+        params.skipped_bounces,
+    );
+    while pool.candidates.is_empty() {
+        if pool.grow() == 0 && pool.particles >= 1 << 16 {
+            if pool.hits == 0 || params.skipped_bounces == 0 {
+                return Err(BakeError::NoCandidates {
+                    scene: scene.source.clone(),
+                    viewpoint: viewpoint.to_array(),
+                });
+            }
+            // An open scene (a single quad, say): particles reach surfaces but escape before
+            // the skipped bounces end. Deposit from the first hit instead, and say so.
+            let w = format!(
+                "no particle path survived the first {} bounces (an open scene?); candidates are deposited from the first bounce on",
+                params.skipped_bounces
+            );
+            obs.warn(&w);
+            warnings.push(w);
+            params.skipped_bounces = 0;
+            pool = CandidatePool::new(caster, viewpoint, params.seed, params.particle_bounces, 0);
+        }
+    }
+    obs.done(
+        "candidates",
+        pool.seconds,
+        &format!(
+            "{} candidates from {} particles",
+            pool.candidates.len(),
+            pool.particles
+        ),
+    );
+    Ok(pool)
+}
+
+fn scene_info(scene: &Scene, caster: &dyn RayCaster) -> SceneInfo {
+    let (bounds_min, bounds_max) = caster.bounds();
+    SceneInfo {
+        source: scene.source.clone(),
+        content_hash: scene.content_hash,
+        triangles: scene.triangle_count(),
+        degenerate_dropped: match &scene.geometry {
+            mlt_scenes::Geometry::Mesh(m) => m.degenerate_dropped,
+            _ => 0,
+        },
+        scale: scene.scale,
+        viewpoint: scene.viewpoint.to_array(),
+        bounds_min: bounds_min.to_array(),
+        bounds_max: bounds_max.to_array(),
+    }
 }
 
 fn light_info(scene: &Scene) -> LightInfo {
@@ -375,7 +498,7 @@ const LIGHT_PROBE_RAYS: u32 = 1024;
 /// a point light beside an open scene. `LIGHT_PROBE_RAYS` rays in the cone (or
 /// over the sphere) from the light; none hitting a surface means the
 /// default light gives a black image (the bake itself does not depend on the light).
-pub fn light_warning(scene: &Scene, caster: &dyn mlt_scenes::RayCaster) -> Option<String> {
+pub fn light_warning(scene: &Scene, caster: &dyn RayCaster) -> Option<String> {
     let l = &scene.light;
     let origin = Vec3::from(l.position);
     let (axis, cos_max) = match (l.kind, l.direction, l.cone_deg) {

@@ -13,14 +13,14 @@ use mlt_format::{IndexedBasis, Transport};
 use mlt_scenes::RayCaster;
 
 use crate::error::BakeError;
-use crate::neumann::{series, spectral_radius, BounceReceivers, Row, SeriesReport};
+use crate::neumann::{series, spectral_radius, BounceReceivers, Row, Rows, SeriesReport};
 use crate::observer::Observer;
 use crate::refine::{refine, ReceiverLinks, RefineSettings, RefineStats};
 
 /// The result, with what the user should be told.
 pub struct TransportOutput {
     pub transport: Transport,
-    /// Always measured; stored in the file only when timings are recorded.
+    /// Always taken; stored in the file only when timings are recorded.
     pub timings: TransportTimings,
     pub warnings: Vec<String>,
     /// Levels of the basis to store: finer levels without a link of S are left out (see
@@ -246,14 +246,182 @@ pub fn finish_transport(
     obs: &dyn Observer,
 ) -> Result<TransportOutput, BakeError> {
     let t_start = Instant::now();
-    let mut warnings = Vec::new();
     let b = &ib.basis;
     let levels = ib.levels();
     let senders = b.level_offsets[params.sender_levels as usize] as usize;
     let receivers = b.len();
+    let run = run_series(ib, &t, &params, policy, senders, obs)?;
+    let p = pack_s(ib, &t, &run.extra, &params, senders)?;
+    let SeriesRun {
+        rho,
+        needed,
+        planned,
+        report,
+        bounces_s,
+        ..
+    } = run;
+    let error = error_estimate(&report, rho, policy.tolerance, p.qerr, p.max_link);
+    let warnings = error_warnings(&error, &report, rho, needed, &params, policy, obs);
+    let dense_links_bytes = senders as u64 * receivers as u64 * (LINK_DIM as u64 * 2);
+    let report_section = TransportReport {
+        bounce_mode: if policy.auto { "auto" } else { "fixed" }.into(),
+        bounce_tolerance: policy.tolerance,
+        bounces_planned: planned,
+        bounce_cap: if policy.auto { params.bounces } else { 0 },
+        error,
+        left_out: LeftOut {
+            levels_placed: levels as u32,
+            levels_stored: p.levels_stored as u32,
+            points_placed: receivers as u64,
+            points_stored: p.stored_receivers as u64,
+            level_bytes_saved: p.basis_bytes.saturating_sub(p.stored_basis_bytes),
+            receivers_refined_per_level: rstats.receivers_refined.clone(),
+            receivers_linked_per_level: p.linked_per_level,
+            senders_linked: p.links.sender_ids.len() as u64,
+            senders: senders as u64,
+            links_bytes: p.links_bytes,
+            dense_links_bytes,
+        },
+    };
+
+    let stats = TransportStats {
+        links: p.links.link_count() as u64,
+        potential_links: senders as u64 * receivers as u64,
+        t_links: t.link_count() as u64,
+        senders: senders as u64,
+        receivers: receivers as u64,
+        visibility_rays: rstats.rays,
+        unsupported_hits: rstats.unsupported_hits,
+        receivers_refined: rstats.receivers_refined,
+        t_links_per_level: rstats.links_per_level,
+        s_links_per_level: p.s_per_level,
+        bounces: report.bounces,
+        bounce_max_norm: report.max_norm,
+        bounce_sum_norm: report.sum_norm,
+        bounce_kept_sum_norm: report.kept_sum_norm,
+        spectral_radius: rho,
+        quantisation_error: p.qerr,
+        basis_bytes: p.basis_bytes,
+        links_bytes: p.links_bytes,
+    };
+    let timings = TransportTimings {
+        refine_s,
+        bounces_s,
+        total_s: refine_s + t_start.elapsed().as_secs_f64(),
+        peak_rss_bytes: peak_rss_bytes(),
+        threads: rayon::current_num_threads() as u32,
+    };
+    Ok(TransportOutput {
+        transport: Transport {
+            meta: TransportMeta {
+                params,
+                stats,
+                timings: None,
+            },
+            links: p.links,
+            report: Some(report_section),
+        },
+        timings,
+        warnings,
+        levels_stored: p.levels_stored,
+    })
+}
+
+/// S packed for the file, with the counts and sizes its statistics report.
+struct PackedS {
+    links: Links,
+    /// The largest absolute f16 error of the packed links.
+    qerr: f32,
+    s_per_level: Vec<u64>,
+    linked_per_level: Vec<u64>,
+    levels_stored: usize,
+    stored_receivers: usize,
+    links_bytes: u64,
+    basis_bytes: u64,
+    stored_basis_bytes: u64,
+    /// The largest link norm of S.
+    max_link: f64,
+}
+
+/// S = T + `extra`, sender-major, packed over the levels to store: every sender level, and
+/// the receiver levels that hold a link of S (refinement queues a receiver's children only
+/// when it kept a link, so these are contiguous from level 0).
+fn pack_s(
+    ib: &IndexedBasis,
+    t: &ReceiverLinks,
+    extra: &Rows,
+    params: &TransportParams,
+    senders: usize,
+) -> Result<PackedS, BakeError> {
+    let b = &ib.basis;
+    let levels = ib.levels();
+    let (columns, s_per_level) = sender_major(ib, t, extra);
+    let linked_per_level = linked_per_level(ib, &columns);
+    let last_linked = linked_per_level
+        .iter()
+        .rposition(|&n| n > 0)
+        .map_or(0, |l| l + 1);
+    let levels_stored = last_linked.max(params.sender_levels as usize).min(levels);
+    let stored_receivers = b.level_offsets[levels_stored] as usize;
+    let (links, qerr) = Links::pack(
+        stored_receivers as u32,
+        senders as u32,
+        columns.iter().map(|(s, col)| SenderLinks {
+            sender: *s,
+            links: col,
+        }),
+    );
+    let links_bytes = mlt_format::file::archived_len(&links)?;
+    let basis_bytes = mlt_format::file::basis_archived_len(ib)?;
+    let stored_basis_bytes = if levels_stored < levels {
+        mlt_format::file::basis_archived_len(&trim_levels(ib, levels_stored)?)?
+    } else {
+        basis_bytes
+    };
+    let max_link = columns
+        .iter()
+        .flat_map(|(_, col)| col.iter())
+        .fold(0.0f64, |m, (_, v)| {
+            m.max(crate::gather::link_norm(v) as f64)
+        });
+    Ok(PackedS {
+        links,
+        qerr,
+        s_per_level,
+        linked_per_level,
+        levels_stored,
+        stored_receivers,
+        links_bytes,
+        basis_bytes,
+        stored_basis_bytes,
+        max_link,
+    })
+}
+
+/// What the Neumann series gave: the spectral radius, the bounces the tolerance needs, the
+/// bounces planned, the bounces beyond T summed per row, the report and the seconds it took.
+struct SeriesRun {
+    rho: f64,
+    needed: Option<u64>,
+    planned: u32,
+    extra: Rows,
+    report: SeriesReport,
+    bounces_s: f64,
+}
+
+/// The spectral-radius check and the series (section 3.2), with the count asked for or, with
+/// `policy.auto`, the one that brings the tail `rho^B` under the tolerance, at most the cap.
+fn run_series(
+    ib: &IndexedBasis,
+    t: &ReceiverLinks,
+    params: &TransportParams,
+    policy: BouncePolicy,
+    senders: usize,
+    obs: &dyn Observer,
+) -> Result<SeriesRun, BakeError> {
     obs.stage("indirect bounces");
     let t1 = Instant::now();
-    let rho = spectral_radius(ib, &t);
+    let rho = spectral_radius(ib, t);
     // At 1 - 1e-4 the series would need some 10^5 bounces; treat it as divergent.
     if rho.is_nan() || rho >= 1.0 - 1e-4 {
         return Err(BakeError::Divergent {
@@ -265,8 +433,6 @@ pub fn finish_transport(
     } else {
         BounceReceivers::Coarsest
     };
-    // The count: the one asked for, or (auto) the one that brings the tail rho^B under the
-    // tolerance, at most the cap.
     let needed = bounces_needed(rho, policy.tolerance);
     let planned = if policy.auto {
         needed
@@ -277,7 +443,7 @@ pub fn finish_transport(
     };
     let (extra, report) = series(
         ib,
-        &t,
+        t,
         senders,
         planned,
         params.bounce_epsilon,
@@ -300,10 +466,25 @@ pub fn finish_transport(
         bounces_s,
         &format!("{} bounces, spectral radius {rho:.3}", report.bounces),
     );
+    Ok(SeriesRun {
+        rho,
+        needed,
+        planned,
+        extra,
+        report,
+        bounces_s,
+    })
+}
 
-    // S = T + the bounces, regrouped sender-major: every link as (sender, receiver, value),
-    // sorted; a receiver holds at most one T link and one bounce link per sender, summed
-    // (float addition of two terms is commutative, so the order does not matter).
+/// One sender's links of S: `(receiver, value)` ascending by receiver.
+type Column = (u32, Row);
+
+/// S = T + the bounces, regrouped sender-major: every link as (sender, receiver, value),
+/// sorted; a receiver holds at most one T link and one bounce link per sender, summed (float
+/// addition of two terms is commutative, so the order does not matter). Returns the columns
+/// and the links of S per receiver level.
+fn sender_major(ib: &IndexedBasis, t: &ReceiverLinks, extra: &Rows) -> (Vec<Column>, Vec<u64>) {
+    let b = &ib.basis;
     let extra_links: usize = extra.iter().map(|r| r.len()).sum();
     let mut triples: Vec<(u32, u32, [f32; LINK_DIM])> =
         Vec::with_capacity(t.link_count() + extra_links);
@@ -317,8 +498,8 @@ pub fn finish_transport(
         }
     }
     triples.sort_unstable_by_key(|&(s, r, _)| (s, r));
-    let mut s_per_level = vec![0u64; levels];
-    let mut columns: Vec<(u32, Row)> = Vec::new();
+    let mut s_per_level = vec![0u64; ib.levels()];
+    let mut columns: Vec<Column> = Vec::new();
     for (s, r, v) in triples {
         match columns.last_mut() {
             Some((cs, col)) if *cs == s => match col.last_mut() {
@@ -334,52 +515,39 @@ pub fn finish_transport(
         }
         s_per_level[b.level_of(r as usize)] += 1;
     }
-    // Levels to store: every sender level, and the receiver levels that hold a link of S
-    // (refinement queues a receiver's children only when it kept a link, so these are
-    // contiguous from level 0).
-    let mut linked_per_level = vec![0u64; levels];
-    {
-        let mut linked = vec![false; receivers];
-        for (_, col) in &columns {
-            for (r, _) in col {
-                linked[*r as usize] = true;
-            }
-        }
-        for (r, &l) in linked.iter().enumerate() {
-            if l {
-                linked_per_level[b.level_of(r)] += 1;
-            }
+    (columns, s_per_level)
+}
+
+/// Receivers that hold a link of S, per level.
+fn linked_per_level(ib: &IndexedBasis, columns: &[Column]) -> Vec<u64> {
+    let b = &ib.basis;
+    let mut linked_per_level = vec![0u64; ib.levels()];
+    let mut linked = vec![false; b.len()];
+    for (_, col) in columns {
+        for (r, _) in col {
+            linked[*r as usize] = true;
         }
     }
-    let last_linked = linked_per_level
-        .iter()
-        .rposition(|&n| n > 0)
-        .map_or(0, |l| l + 1);
-    let levels_stored = last_linked.max(params.sender_levels as usize).min(levels);
-    let stored_receivers = b.level_offsets[levels_stored] as usize;
-    let (links, qerr) = Links::pack(
-        stored_receivers as u32,
-        senders as u32,
-        columns.iter().map(|(s, col)| SenderLinks {
-            sender: *s,
-            links: col,
-        }),
-    );
-    let links_bytes = mlt_format::file::archived_len(&links)?;
-    let basis_bytes = mlt_format::file::basis_archived_len(ib)?;
-    let stored_basis_bytes = if levels_stored < levels {
-        mlt_format::file::basis_archived_len(&trim_levels(ib, levels_stored)?)?
-    } else {
-        basis_bytes
-    };
+    for (r, &l) in linked.iter().enumerate() {
+        if l {
+            linked_per_level[b.level_of(r)] += 1;
+        }
+    }
+    linked_per_level
+}
 
-    let max_link = columns
-        .iter()
-        .flat_map(|(_, col)| col.iter())
-        .fold(0.0f64, |m, (_, v)| {
-            m.max(crate::gather::link_norm(v) as f64)
-        });
-    let error = error_estimate(&report, rho, policy.tolerance, qerr, max_link);
+/// Warnings (sent to `obs` and returned) when the series left out more of the indirect light
+/// than the tolerance: by stopping too early, or by truncating bounces 2 and later.
+fn error_warnings(
+    error: &ErrorEstimate,
+    report: &SeriesReport,
+    rho: f64,
+    needed: Option<u64>,
+    params: &TransportParams,
+    policy: BouncePolicy,
+    obs: &dyn Observer,
+) -> Vec<String> {
+    let mut warnings = Vec::new();
     let more = needed.map_or("many more".to_string(), |n| n.to_string());
     if !error.series_converged {
         let w = if policy.auto {
@@ -411,67 +579,5 @@ pub fn finish_transport(
         obs.warn(&w);
         warnings.push(w);
     }
-    let dense_links_bytes = senders as u64 * receivers as u64 * (LINK_DIM as u64 * 2);
-    let report_section = TransportReport {
-        bounce_mode: if policy.auto { "auto" } else { "fixed" }.into(),
-        bounce_tolerance: policy.tolerance,
-        bounces_planned: planned,
-        bounce_cap: if policy.auto { params.bounces } else { 0 },
-        error,
-        left_out: LeftOut {
-            levels_placed: levels as u32,
-            levels_stored: levels_stored as u32,
-            points_placed: receivers as u64,
-            points_stored: stored_receivers as u64,
-            level_bytes_saved: basis_bytes.saturating_sub(stored_basis_bytes),
-            receivers_refined_per_level: rstats.receivers_refined.clone(),
-            receivers_linked_per_level: linked_per_level,
-            senders_linked: links.sender_ids.len() as u64,
-            senders: senders as u64,
-            links_bytes,
-            dense_links_bytes,
-        },
-    };
-
-    let stats = TransportStats {
-        links: links.link_count() as u64,
-        potential_links: senders as u64 * receivers as u64,
-        t_links: t.link_count() as u64,
-        senders: senders as u64,
-        receivers: receivers as u64,
-        visibility_rays: rstats.rays,
-        unsupported_hits: rstats.unsupported_hits,
-        receivers_refined: rstats.receivers_refined,
-        t_links_per_level: rstats.links_per_level,
-        s_links_per_level: s_per_level,
-        bounces: report.bounces,
-        bounce_max_norm: report.max_norm,
-        bounce_sum_norm: report.sum_norm,
-        bounce_kept_sum_norm: report.kept_sum_norm,
-        spectral_radius: rho,
-        quantisation_error: qerr,
-        basis_bytes,
-        links_bytes,
-    };
-    let timings = TransportTimings {
-        refine_s,
-        bounces_s,
-        total_s: refine_s + t_start.elapsed().as_secs_f64(),
-        peak_rss_bytes: peak_rss_bytes(),
-        threads: rayon::current_num_threads() as u32,
-    };
-    Ok(TransportOutput {
-        transport: Transport {
-            meta: TransportMeta {
-                params,
-                stats,
-                timings: None,
-            },
-            links,
-            report: Some(report_section),
-        },
-        timings,
-        warnings,
-        levels_stored,
-    })
+    warnings
 }

@@ -19,7 +19,7 @@ use std::collections::{BTreeMap, HashMap};
 use glam::Vec3;
 
 use crate::error::SceneError;
-use crate::manifest::{BakeSettings, CameraDesc, LightDesc, LightKind, SpotFalloff};
+use crate::manifest::{CameraDesc, LightDesc, LightKind, SpotFalloff};
 use crate::mesh::{Material, Mesh};
 use crate::scene::{Geometry, Scene};
 
@@ -69,7 +69,7 @@ pub fn load_builtin(rest: &str) -> Result<Scene, SceneError> {
         viewpoint: built.viewpoint,
         camera: built.camera,
         light: built.light,
-        bake: BakeSettings::default(),
+        bake: toml::Table::new(),
         scale: built.scale,
         warnings: params.warnings,
     })

@@ -24,8 +24,7 @@ pub mod texture;
 
 pub use error::SceneError;
 pub use manifest::{
-    load_manifest, scene_from_mesh_file, BakeSettings, CameraDesc, LightDesc, LightKind,
-    SpotFalloff,
+    load_manifest, scene_from_mesh_file, CameraDesc, LightDesc, LightKind, SpotFalloff,
 };
 pub use mesh::{Material, Mesh};
 pub use mesh_caster::MeshCaster;

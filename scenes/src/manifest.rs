@@ -20,7 +20,7 @@
 //! intensity = [1.0, 1.0, 1.0]    # RGB radiant intensity, W/sr
 //! # direction = [0, -1, 0]; cone_deg = 60; falloff = "hard" | "smooth"  (spot only)
 //!
-//! [bake]
+//! [bake]                         # any bake parameter (mlt-bake's BakeOptions), as on its command line
 //! receiver_levels = 6
 //! coarse_count = 339             # or coarse_radius = 1.5
 //! seed = 1
@@ -29,7 +29,8 @@
 //! `scale` is applied; the loader scales them with the geometry. Light intensities (W/sr)
 //! are not scaled. Only `[scene]` and its `source` are required; sections left out keep the
 //! source's defaults (a built-in's own, or the guesses of [`scene_from_mesh_file`]). Unknown
-//! keys are errors, as are non-finite numbers and unusable lights or cameras.
+//! keys are errors (those of `[bake]` when the bake reads the table), as are non-finite numbers
+//! and unusable lights or cameras.
 
 use std::path::{Path, PathBuf};
 
@@ -40,7 +41,7 @@ use crate::error::SceneError;
 use crate::obj::warn;
 use crate::scene::{Geometry, Scene};
 
-/// Default camera: DESIGN.md conventions (right-handed, +Y up, vertical fov in degrees).
+/// Default camera: right-handed, +Y up, vertical field of view in degrees.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraDesc {
@@ -105,20 +106,6 @@ pub struct LightDesc {
     pub falloff: SpotFalloff,
 }
 
-/// Bake parameters a manifest may set; the command line overrides them.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct BakeSettings {
-    pub receiver_levels: Option<u32>,
-    pub sender_levels: Option<u32>,
-    pub coarse_count: Option<u32>,
-    pub coarse_radius: Option<f32>,
-    pub seed: Option<u64>,
-    pub epsilon: Option<f32>,
-    pub bounces: Option<u32>,
-    pub gather_rays: Option<u32>,
-}
-
 /// The manifest file as written.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -126,7 +113,8 @@ struct ManifestFile {
     scene: SceneSection,
     camera: Option<CameraDesc>,
     light: Option<LightDesc>,
-    bake: Option<BakeSettings>,
+    /// Left unparsed: the bake reads it (see [`Scene::bake`]).
+    bake: Option<toml::Table>,
 }
 
 /// `[scene]`: what to load.
@@ -193,14 +181,7 @@ pub fn load_manifest(path: &Path) -> Result<Scene, SceneError> {
         scene.light = light;
     }
     if let Some(bake) = file.bake {
-        for (what, value) in [
-            ("[bake] epsilon", bake.epsilon),
-            ("[bake] coarse_radius", bake.coarse_radius),
-        ] {
-            if let Some(v) = value {
-                check_finite(path, what, &[v])?;
-            }
-        }
+        check_bake_table(path, &bake)?;
         scene.bake = bake;
     }
     if explicit_viewpoint {
@@ -233,6 +214,21 @@ fn scale_scene(scene: &mut Scene, s: f32) {
     scene.camera.target = (Vec3::from(scene.camera.target) * s).to_array();
     scene.light.position = (Vec3::from(scene.light.position) * s).to_array();
     scene.scale *= s;
+}
+
+/// The `[bake]` table's numbers must be finite; its keys and types are the bake's to check.
+fn check_bake_table(path: &Path, bake: &toml::Table) -> Result<(), SceneError> {
+    for (key, value) in bake {
+        if let toml::Value::Float(v) = value {
+            if !v.is_finite() {
+                return Err(SceneError::NonFinite {
+                    path: path.to_path_buf(),
+                    what: format!("[bake] {key}"),
+                });
+            }
+        }
+    }
+    Ok(())
 }
 
 fn check_finite(path: &Path, what: &str, values: &[f32]) -> Result<(), SceneError> {
@@ -384,7 +380,7 @@ pub fn scene_from_mesh_file(path: &Path, scale: f32) -> Result<Scene, SceneError
             cone_deg: None,
             falloff: SpotFalloff::Hard,
         },
-        bake: BakeSettings::default(),
+        bake: toml::Table::new(),
         scale,
         warnings,
     })

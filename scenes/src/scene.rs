@@ -5,7 +5,7 @@ use std::path::Path;
 use glam::Vec3;
 
 use crate::error::SceneError;
-use crate::manifest::{BakeSettings, CameraDesc, LightDesc};
+use crate::manifest::{CameraDesc, LightDesc};
 use crate::mesh::Mesh;
 use crate::raycast::RayCaster;
 
@@ -34,7 +34,9 @@ pub struct Scene {
     pub viewpoint: Vec3,
     pub camera: CameraDesc,
     pub light: LightDesc,
-    pub bake: BakeSettings,
+    /// The manifest's `[bake]` table as written (empty for other scenes): bake parameters
+    /// that the bake parses and checks, and that its command line overrides.
+    pub bake: toml::Table,
     /// Scale applied to the source geometry (already applied to everything here).
     pub scale: f32,
     /// Human-readable warnings raised while loading (also sent to the `log` crate).

@@ -64,8 +64,8 @@ seed = 9
     assert_eq!(scene.light.position, [0.5, 1.5, 0.5]);
     assert_eq!(scene.light.intensity, [2.0; 3]);
     assert_eq!(scene.light.kind, LightKind::Spot);
-    assert_eq!(scene.bake.coarse_count, Some(50));
-    assert_eq!(scene.bake.seed, Some(9));
+    assert_eq!(scene.bake["coarse_count"].as_integer(), Some(50));
+    assert_eq!(scene.bake["seed"].as_integer(), Some(9));
     assert_eq!(scene.scale, 0.5);
     let caster = scene.build_caster();
     let (lo, hi) = caster.bounds();

@@ -195,8 +195,8 @@ fn sponza_manifest() {
         return;
     }
     let scene = load_scene(&manifest("sponza.toml").to_string_lossy()).expect("loads");
-    assert_eq!(scene.bake.receiver_levels, Some(6));
-    assert_eq!(scene.bake.coarse_count, Some(339));
+    assert_eq!(scene.bake["receiver_levels"].as_integer(), Some(6));
+    assert_eq!(scene.bake["coarse_count"].as_integer(), Some(339));
     let Geometry::Mesh(mesh) = &scene.geometry else {
         panic!("mesh expected");
     };

@@ -1,0 +1,51 @@
+//! `bake merge`: shard files into the file a single bake gives.
+
+use anyhow::{Context, Result};
+use mlt_bake::report::{estimate_table, transport_table};
+use mlt_format::{BakedFile, WriteOptions};
+
+use crate::cli::MergeArgs;
+use crate::progress::Reporter;
+
+pub fn run(args: &MergeArgs) -> Result<()> {
+    let MergeArgs {
+        shards,
+        output,
+        compress,
+        quiet,
+    } = args;
+    let mut contents = Vec::new();
+    for s in shards {
+        let f = BakedFile::open(s).with_context(|| format!("opening {}", s.display()))?;
+        contents.push(
+            f.contents()
+                .with_context(|| format!("reading {}", s.display()))?,
+        );
+    }
+    let reporter = Reporter::new(*quiet);
+    let merged = mlt_bake::shard::merge(contents, &reporter).context("merging")?;
+    let size = mlt_format::file::write(
+        output,
+        &merged,
+        WriteOptions {
+            compress: *compress,
+        },
+    )
+    .with_context(|| format!("writing {}", output.display()))?;
+    if !quiet {
+        if let Some(t) = &merged.transport {
+            eprint!("{}", transport_table(&t.meta, None));
+            if let Some(r) = &t.report {
+                eprint!("{}", estimate_table(r));
+            }
+        }
+        eprintln!(
+            "merged {} shards: {} ({:.2} MB)",
+            shards.len(),
+            output.display(),
+            size as f64 / 1e6
+        );
+    }
+    println!("{}", output.display());
+    Ok(())
+}
