@@ -8,16 +8,7 @@ use mlt_format::links::LINK_DIM;
 use mlt_format::pull_push::pull_push;
 use mlt_format::{BakeContents, BakedFile, IndexedBasis, WriteOptions};
 use mlt_scenes::RayCaster;
-use mlt_tests::{bake_with, repo_dir, shared_dir, surface_samples};
-
-fn manifest(name: &str) -> String {
-    assert!(
-        shared_dir().join("scenes").is_dir(),
-        "{} is missing: these tests need ../shared/scenes (or MLT_SHARED)",
-        shared_dir().display()
-    );
-    repo_dir().join("scenes").join(name).display().to_string()
-}
+use mlt_tests::{bake_with, shared_manifest as manifest, surface_samples, TempDir};
 
 fn small(levels: u32, coarse: u32, rays: u32) -> BakeOptions {
     BakeOptions {
@@ -188,9 +179,8 @@ fn sponzas_flipped_and_non_unit_normals_give_no_negative_or_dark_regions() {
 }
 
 /// A manifest around a built-in, written to a temporary directory.
-fn manifest_file(name: &str, text: &str) -> (std::path::PathBuf, String) {
-    let dir = std::env::temp_dir().join(format!("mlt-degenerate-{name}-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+fn manifest_file(name: &str, text: &str) -> (TempDir, String) {
+    let dir = TempDir::new(&format!("degenerate-{name}"));
     let path = dir.join(format!("{name}.toml"));
     std::fs::write(&path, text).unwrap();
     let spec = path.display().to_string();
@@ -211,9 +201,9 @@ fn a_spot_light_pointing_at_nothing_is_reported() {
     );
     let out = bake_with(&spec, opts(), 1);
     assert!(!out.warnings.iter().any(|w| w.contains("lights no surface")));
-    let _ = std::fs::remove_dir_all(dir);
+    drop(dir);
     // Outside the box, pointing away from it: the bake says the light lights nothing.
-    let (dir, spec) = manifest_file(
+    let (_dir, spec) = manifest_file(
         "spot_out",
         &format!("{base}[light]\nkind = \"spot\"\nposition = [0, 5, 0]\nintensity = [1, 1, 1]\ndirection = [0, 1, 0]\ncone_deg = 40\n"),
     );
@@ -227,7 +217,6 @@ fn a_spot_light_pointing_at_nothing_is_reported() {
         w.contains("spot light") && w.contains("spot_out.toml"),
         "{w}"
     );
-    let _ = std::fs::remove_dir_all(dir);
 }
 
 #[test]

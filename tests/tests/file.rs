@@ -8,7 +8,7 @@ fn round_trip_through_disk_with_and_without_compression() {
     let out = bake_small("builtin:cornell", 2, 20, 2);
     let dir = TempDir::new("roundtrip");
     for compress in [false, true] {
-        let path = dir.0.join(format!("c{compress}.mlt"));
+        let path = dir.join(format!("c{compress}.mlt"));
         let size =
             mlt_format::file::write(&path, &out.contents, WriteOptions { compress }).unwrap();
         assert_eq!(std::fs::metadata(&path).unwrap().len(), size);
@@ -20,7 +20,7 @@ fn round_trip_through_disk_with_and_without_compression() {
         assert_eq!(info.levels.len(), 2);
         assert!(info.sections.iter().all(|s| s.compressed == compress));
         // No temporary file is left behind.
-        let leftovers: Vec<_> = std::fs::read_dir(&dir.0)
+        let leftovers: Vec<_> = std::fs::read_dir(&*dir)
             .unwrap()
             .filter_map(|e| e.ok())
             .filter(|e| e.file_name().to_string_lossy().contains(".tmp"))

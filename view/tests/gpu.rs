@@ -17,7 +17,7 @@ use mlt_view::gpu::{Buffers, GBuffer, Gpu, Renderer};
 use mlt_view::images::RgbImage;
 use mlt_view::{Camera, CpuRelighter, Light, Relight};
 
-fn temp(name: &str) -> std::path::PathBuf {
+fn temp(name: &str) -> common::TempDir {
     common::temp_dir("gpu", name)
 }
 
@@ -62,7 +62,6 @@ fn render(
     renderer.render(&gpu, &ib, &camera, &light, true).unwrap();
     let buffers = renderer.read_buffers(&gpu).unwrap();
     let gbuffer = renderer.read_gbuffer(&gpu).unwrap();
-    let _ = std::fs::remove_dir_all(&d);
     (buffers, gbuffer, flat, ib, light)
 }
 
@@ -332,7 +331,6 @@ fn headless_cli_writes_finite_non_black_images_and_timings() {
     let gpu = RgbImage::read_exr(&d.join("gpu/indirect.exr")).unwrap();
     let diff = relative_difference(&gpu, &cpu);
     assert!(diff < 1e-4, "GPU and CPU flattening differ by {diff}");
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]
@@ -358,7 +356,6 @@ fn window_without_a_display_says_so_and_suggests_headless() {
     assert!(!r.status.success());
     let err = String::from_utf8_lossy(&r.stderr);
     assert!(err.contains("--headless"), "{err}");
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]
@@ -401,7 +398,6 @@ fn window_opens_under_xvfb_and_saves_every_view() {
         let lit = img.pixels().filter(|p| p.0.iter().any(|&c| c > 10)).count();
         assert!(lit > 96 * 72 / 4, "{mode}: only {lit} lit pixels");
     }
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 /// Mean of |a - b| over pixels, relative to the mean of b.
@@ -485,7 +481,8 @@ fn the_rendered_image_does_not_depend_on_the_scenes_scale() {
 
 #[test]
 fn the_conference_room_renders_without_nan_or_inf() {
-    // 16 % zero-area triangles and back-to-back double faces (../shared/scenes).
+    // The conference room: 16 % zero-area triangles and back-to-back double faces.
+    common::shared_scenes();
     let manifest = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../scenes/conference.toml")
         .display()
@@ -563,5 +560,4 @@ fn gpu_flattening_equals_the_cpu_operator() {
     relighter.set_flatten_on_cpu(false);
     let frame2 = relighter.relight(&light);
     assert!(frame2.flat.is_empty() && frame2.i == frame.i);
-    let _ = std::fs::remove_dir_all(&d);
 }

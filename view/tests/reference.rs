@@ -3,7 +3,7 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
 use glam::Vec3;
@@ -15,7 +15,7 @@ use mlt_view::reference::{
 };
 use mlt_view::{Camera, Light, RgbImage};
 
-fn temp(name: &str) -> PathBuf {
+fn temp(name: &str) -> common::TempDir {
     common::temp_dir("reference", name)
 }
 
@@ -319,7 +319,6 @@ fn compare_reports_zero_for_identical_dirs_and_the_scale_of_a_scaled_image() {
         e.contains("final.exr") && e.contains("(7, 0)") && e.contains("not finite"),
         "{e}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 fn write(path: &Path, s: &str) {
@@ -386,5 +385,4 @@ fn probe_csvs_compare_row_by_row() {
     write(&tp, &test_csv(0.5));
     let e = compare_probe_csv(&rp, &tp).unwrap_err().to_string();
     assert!(e.contains("test.csv") && e.contains("probe 2"), "{e}");
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -1,8 +1,8 @@
 //! What the view crate's test files share. (Each test file compiles this module on its own and
 //! uses part of it, hence the allowance.)
-#![allow(dead_code)]
+#![allow(dead_code, unused_imports)]
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use mlt_bake::{bake_scene, BakeOptions, Silent};
 use mlt_format::WriteOptions;
@@ -14,10 +14,9 @@ pub fn bake_to(path: &Path, spec: &str, opts: BakeOptions) {
     mlt_format::file::write(path, &out.contents, WriteOptions::default()).unwrap();
 }
 
-/// A fresh, empty directory `mlt-{file}-{name}-{process}` under the system's temporary one.
-pub fn temp_dir(file: &str, name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("mlt-{file}-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+pub use mlt_test_support::{shared_scenes, TempDir};
+
+/// A fresh, empty directory for the test `name` of the test file `file`, removed on drop.
+pub fn temp_dir(file: &str, name: &str) -> TempDir {
+    TempDir::new(&format!("{file}-{name}"))
 }
