@@ -9,7 +9,7 @@ use mlt_format::meta::{
 };
 use mlt_format::shepard::MIN_WEIGHT_SUM;
 use mlt_format::{BakeContents, IndexedBasis};
-use mlt_scenes::{LightKind, Scene, SpotFalloff};
+use mlt_scenes::{LightKind, Scene};
 
 use crate::candidates::CandidatePool;
 use crate::error::BakeError;
@@ -349,23 +349,7 @@ pub fn bake_scene(
 }
 
 fn light_info(scene: &Scene) -> LightInfo {
-    let l = &scene.light;
-    let spot = l.kind == LightKind::Spot;
-    LightInfo {
-        kind: if spot { "spot" } else { "point" }.into(),
-        position: l.position,
-        intensity: l.intensity,
-        direction: match (spot, l.direction) {
-            (true, Some(d)) => Vec3::from(d).normalize_or_zero().to_array(),
-            _ => [0.0; 3],
-        },
-        cone_deg: if spot { l.cone_deg.unwrap_or(0.0) } else { 0.0 },
-        falloff: match l.falloff {
-            SpotFalloff::Hard => "hard",
-            SpotFalloff::Smooth => "smooth",
-        }
-        .into(),
-    }
+    LightInfo::from(&scene.light)
 }
 
 /// Rays cast from the light to see whether it lights anything.

@@ -7,7 +7,8 @@
 //! - [`pull_push`]: coarse-to-fine projection `P` (Eq. 7) and pull-push `P-dagger`;
 //! - [`flatten`]: resampling to a single level, [`flatten_op`]: its precomputed sparse
 //!   operator; [`adjacency`]: neighbours, parents, children; [`morton`]: the point order;
-//! - [`container`], [`meta`], [`file`]: the versioned, memory-mappable file.
+//! - [`container`], [`meta`], [`file`]: the versioned, memory-mappable file; [`light`]: the
+//!   scene's light, from the manifest to the file.
 //!
 //! This crate depends on no mesh, GPU or windowing crate.
 
@@ -19,6 +20,7 @@ pub mod file;
 pub mod flatten;
 pub mod flatten_op;
 pub mod kernel;
+pub mod light;
 pub mod links;
 pub mod meta;
 pub mod morton;

@@ -10,7 +10,6 @@ use anyhow::{bail, Context, Result};
 use clap::Parser;
 use glam::Vec3;
 use mlt_format::BakedFile;
-use mlt_scenes::manifest::{LightKind, SpotFalloff};
 use mlt_view::probe::parse_probes;
 use mlt_view::reference::{
     camera_probes, probes_to_csv, reference_json, reference_probes, render_reference_with,
@@ -92,18 +91,7 @@ fn main() -> Result<()> {
             c.height,
         )
         .context("the scene's camera")?;
-        let l = &scene.light;
-        let light = match l.kind {
-            LightKind::Point => Light::point(l.position.into(), l.intensity),
-            LightKind::Spot => Light::spot(
-                l.position.into(),
-                l.intensity,
-                l.direction.unwrap_or([0.0, -1.0, 0.0]).into(),
-                l.cone_deg.unwrap_or(0.0),
-                l.falloff == SpotFalloff::Smooth,
-            ),
-        }
-        .context("the scene's light")?;
+        let light = Light::from_desc(&scene.light).context("the scene's light")?;
         (
             cli.scene.clone().unwrap_or(cli.input.clone()),
             camera,
