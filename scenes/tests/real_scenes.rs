@@ -1,5 +1,6 @@
-//! Every OBJ of the third-party scenes (`shared/scenes`, see `mlt-test-support`) loads with the expected triangle counts, and the manifests in
-//! scenes/ load and place their viewpoints inside the geometry.
+//! Every OBJ of the third-party scenes (see `mlt-test-support`) loads with the expected
+//! triangle counts, and the manifests in scenes/ load and place their viewpoints inside the
+//! geometry.
 
 mod common;
 
@@ -99,7 +100,7 @@ fn sponza_loads_with_and_without_materials() {
 fn sibenik_loads() {
     let path = common::shared_scene("sibenik/sibenik.obj");
     let (mesh, _, _) = load_obj(&path, 1.0).expect("loads");
-    // README: 10 zero-area triangles in f64, 9 after rounding to f32.
+    // The file has 10 zero-area triangles in f64, 9 after rounding to f32.
     assert!(
         (9..=10).contains(&mesh.degenerate_dropped),
         "{}",

@@ -223,7 +223,7 @@ fn a_spot_light_pointing_at_nothing_is_reported() {
 fn finer_levels_without_links_are_left_out_and_change_nothing() {
     // At epsilon 0.5 no link of the Cornell box survives: only the sender levels are stored
     // (the refinement reaches every level wherever a link survives, so on our scenes at
-    // working epsilons no level is left out; see the README).
+    // working epsilons no level is left out).
     let spec = "builtin:cornell";
     let out = bake_with(
         spec,

@@ -1,5 +1,5 @@
-//! Image outputs of DESIGN.md: linear HDR radiance as OpenEXR (float RGB) and a tone-mapped
-//! PNG for people (Reinhard et al. 2002, global operator). Files are written atomically.
+//! Image outputs: linear HDR radiance as OpenEXR (float RGB) and a tone-mapped PNG for people
+//! (Reinhard et al. 2002, global operator). Files are written atomically.
 
 use std::io::Cursor;
 use std::path::Path;
