@@ -162,7 +162,8 @@ fn builtin_cornell_manifest() {
 #[test]
 fn cornell_obj_manifest() {
     common::shared_scene("cornell_box/CornellBox-Original.obj");
-    let scene = load_scene(&manifest("cornell_obj.toml").to_string_lossy()).expect("loads");
+    let scene =
+        load_scene(&common::shared_manifest(&manifest("cornell_obj.toml")).spec()).expect("loads");
     assert_eq!(scene.viewpoint, Vec3::new(0.0, 1.0, 0.5));
     assert_eq!(scene.light.intensity, [3.6; 3]);
     assert!(
@@ -183,7 +184,8 @@ fn cornell_obj_manifest() {
 #[test]
 fn sponza_manifest() {
     common::shared_scene("sponza_dabrovic/sponza_with_materials.obj");
-    let scene = load_scene(&manifest("sponza.toml").to_string_lossy()).expect("loads");
+    let scene =
+        load_scene(&common::shared_manifest(&manifest("sponza.toml")).spec()).expect("loads");
     assert_eq!(scene.bake.receiver_levels, Some(6));
     assert_eq!(scene.bake.coarse_count, Some(339));
     let Geometry::Mesh(mesh) = &scene.geometry else {
@@ -213,13 +215,15 @@ fn sponza_manifest() {
 #[test]
 fn sibenik_and_conference_manifests() {
     common::shared_scene("sibenik/sibenik.obj");
-    let scene = load_scene(&manifest("sibenik.toml").to_string_lossy()).expect("loads");
+    let scene =
+        load_scene(&common::shared_manifest(&manifest("sibenik.toml")).spec()).expect("loads");
     let caster = scene.build_caster();
     assert_viewpoint_inside(caster.as_ref(), scene.viewpoint, 3.0);
     assert!(!caster.occluded(Vec3::from(scene.light.position), scene.viewpoint));
 
     common::shared_scene("conference/conference.obj");
-    let scene = load_scene(&manifest("conference.toml").to_string_lossy()).expect("loads");
+    let scene =
+        load_scene(&common::shared_manifest(&manifest("conference.toml")).spec()).expect("loads");
     assert!((scene.scale - 0.003).abs() < 1e-9);
     assert!((scene.viewpoint - Vec3::new(3.6, 1.2, -0.45)).length() < 1e-4);
     assert_eq!(scene.light.intensity, [3.0; 3], "intensity is not scaled");

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use glam::Vec3;
 use mlt_bake::{bake_scene, BakeOptions, BakeOutput, Silent};
 use mlt_scenes::RayCaster;
-pub use mlt_test_support::{shared_scenes, TempDir};
+pub use mlt_test_support::{shared_scenes, SharedManifest, TempDir};
 
 /// Surface points (with shading normals facing `from`) hit by `n` rays from `from` in a
 /// golden-angle spiral of directions: query points independent of any basis.
@@ -29,13 +29,13 @@ pub fn repo_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-/// The repository's manifest `scenes/NAME` of a third-party scene, as a scene specification.
+/// The repository's manifest `scenes/NAME` of a third-party scene, pointed at the shared
+/// scenes wherever they are (see [`mlt_test_support::shared_manifest`]).
 ///
 /// # Panics
-/// When the shared scenes are missing (see [`shared_scenes`]).
-pub fn shared_manifest(name: &str) -> String {
-    shared_scenes();
-    repo_dir().join("scenes").join(name).display().to_string()
+/// When the shared scenes are missing.
+pub fn shared_manifest(name: &str) -> SharedManifest {
+    mlt_test_support::shared_manifest(&repo_dir().join("scenes").join(name))
 }
 
 /// Bakes the basis only of `spec` with `levels` levels and about `coarse` level-0 points on

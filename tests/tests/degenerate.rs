@@ -108,11 +108,11 @@ fn mlt_tests_sender_levels(ib: &IndexedBasis, levels: usize) -> IndexedBasis {
 #[test]
 fn the_conference_room_bakes_without_nan_or_inf() {
     // 331k triangles, 16 % of zero area (dropped at load), back-to-back double faces.
-    let out = bake_with(&manifest("conference.toml"), small(2, 40, 32), 2);
+    let out = bake_with(&manifest("conference.toml").spec(), small(2, 40, 32), 2);
     assert!(out.contents.meta.scene.degenerate_dropped > 50_000);
     let file = check_file_is_finite("conference.mlt", &out.contents);
     let ib = file.basis().unwrap();
-    let scene = mlt_scenes::load_scene(&manifest("conference.toml")).unwrap();
+    let scene = mlt_scenes::load_scene(&manifest("conference.toml").spec()).unwrap();
     let caster = scene.build_caster();
     let points = surface_samples(caster.as_ref(), scene.viewpoint, 200);
     let l = &scene.light;
@@ -141,7 +141,7 @@ fn sponzas_flipped_and_non_unit_normals_give_no_negative_or_dark_regions() {
     // normals point against their winding. The loader renormalises, the caster orients
     // shading normals towards the ray; the relit indirect light is positive everywhere
     // seen from the courtyard.
-    let out: BakeOutput = bake_with(&manifest("sponza.toml"), small(3, 60, 64), 2);
+    let out: BakeOutput = bake_with(&manifest("sponza.toml").spec(), small(3, 60, 64), 2);
     let file = check_file_is_finite("sponza.mlt", &out.contents);
     let ib = file.basis().unwrap();
     assert!(ib
@@ -149,7 +149,7 @@ fn sponzas_flipped_and_non_unit_normals_give_no_negative_or_dark_regions() {
         .normals
         .iter()
         .all(|n| (Vec3::from(*n).length() - 1.0).abs() < 1e-4));
-    let scene = mlt_scenes::load_scene(&manifest("sponza.toml")).unwrap();
+    let scene = mlt_scenes::load_scene(&manifest("sponza.toml").spec()).unwrap();
     let caster = scene.build_caster();
     let points = surface_samples(caster.as_ref(), scene.viewpoint, 400);
     let l = &scene.light;

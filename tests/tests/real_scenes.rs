@@ -5,7 +5,7 @@ use mlt_format::kernel::poisson_distance;
 use mlt_tests::{bake_small, shared_manifest as manifest};
 
 fn check_basis(name: &str, levels: u32, coarse: u32) {
-    let out = bake_small(&manifest(name), levels, coarse, 2);
+    let out = bake_small(&manifest(name).spec(), levels, coarse, 2);
     let b = &out.contents.basis.basis;
     b.validate().unwrap();
     assert_eq!(b.levels(), levels as usize);

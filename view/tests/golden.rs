@@ -4,8 +4,8 @@
 //!
 //! The setup: `builtin:cornell` baked with 4 receiver levels, about 60 level-0 points, 64
 //! gather rays and seed 1; relit on the CPU (8 shadow rays per sender, flattening on the CPU)
-//! with the file's light; rendered at 96x72 with the file's camera (512-pixel shadow map); the
-//! final (direct + indirect) buffer is compared.
+//! with the scene's light; rendered at 96x72 with the file's camera and a 512-pixel shadow map
+//! (`common::render`); the final (direct + indirect) buffer is compared.
 //!
 //! The comparison passes when both hold:
 //! - relative RMSE `sqrt(sum (a - g)^2 / sum g^2)` over all channels of the linear images is
@@ -30,13 +30,10 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use common::{bake_to, TempDir};
+use common::small;
 use mlt_bake::BakeOptions;
-use mlt_format::BakedFile;
-use mlt_view::gpu::mesh::GpuMesh;
-use mlt_view::gpu::{Gpu, Renderer};
 use mlt_view::images::{linear_to_srgb, luminance, ToneMap};
-use mlt_view::{Camera, CpuRelighter, Light, Relight, RgbImage};
+use mlt_view::{Light, RgbImage};
 
 /// Largest relative RMSE of the linear final image.
 const MAX_RELATIVE_RMSE: f64 = 0.01;
@@ -65,49 +62,20 @@ fn failure_dir() -> PathBuf {
     profile.join("golden")
 }
 
-/// Bakes the small Cornell box into `dir` and returns the final image rendered with the
-/// file's light as `light` changes it.
-fn render(dir: &TempDir, light: impl Fn(Light) -> Light) -> RgbImage {
+/// The final image of the small Cornell box relit with the file's light as `light` changes it.
+fn render(name: &str, light: impl Fn(Light) -> Light) -> RgbImage {
     let spec = "builtin:cornell";
-    let f = dir.join("cornell.mlt");
-    bake_to(
-        &f,
-        spec,
-        BakeOptions {
-            receiver_levels: Some(4),
-            coarse_count: Some(60),
-            gather_rays: Some(64),
-            seed: Some(1),
-            ..Default::default()
-        },
-    );
-    let file = BakedFile::open(&f).unwrap();
-    let meta = file.meta().unwrap();
-    let ib = file.basis().unwrap();
-    let tm = file.transport_meta().unwrap().unwrap();
-    let lb = file.links_bytes().unwrap().unwrap();
-    let links = file.access_links(&lb).unwrap();
-    let scene = mlt_scenes::load_scene(spec).unwrap();
-    let caster = scene.build_caster();
-    let light = light(Light::from_info(&meta.light).unwrap());
-    let mut camera = Camera::from_info(&meta.camera).unwrap();
-    camera.width = WIDTH;
-    camera.height = HEIGHT;
-    let mut relighter = CpuRelighter::new(
-        &ib,
-        links,
-        caster.as_ref(),
-        tm.params.sender_levels as usize,
-        8,
-    );
-    let flat = relighter.relight(&light).flat.clone();
-    let gpu = Gpu::headless().unwrap_or_else(|e| {
-        panic!("this test needs a Vulkan adapter (scripts/setup.sh installs Mesa's): {e}")
-    });
-    let mut renderer = Renderer::new(&gpu, &GpuMesh::from_scene(&scene), &ib.basis, 512).unwrap();
-    renderer.set_coefficients(&gpu, &flat);
-    renderer.render(&gpu, &ib, &camera, &light, false).unwrap();
-    renderer.read_buffers(&gpu).unwrap().final_
+    let scene_light = mlt_scenes::load_scene(spec).unwrap().light;
+    let light = light(Light::from_desc(&scene_light).unwrap());
+    let opts = BakeOptions {
+        receiver_levels: Some(4),
+        coarse_count: Some(60),
+        gather_rays: Some(64),
+        seed: Some(1),
+        ..Default::default()
+    };
+    let (buffers, ..) = common::render(spec, opts, Some(light), small(WIDTH, HEIGHT), name);
+    buffers.final_
 }
 
 /// How far an image is from the golden one.
@@ -183,8 +151,7 @@ fn keep_failure(new: &RgbImage, golden: &RgbImage) -> PathBuf {
 
 #[test]
 fn the_cornell_box_renders_like_the_golden_image() {
-    let dir = common::temp_dir("golden", "cornell");
-    let new = render(&dir, |l| l);
+    let new = render("golden", |l| l);
     assert!(new.all_finite());
     let path = golden_path();
     if std::env::var_os("MLT_UPDATE_GOLDEN").is_some() {
@@ -213,15 +180,14 @@ fn the_cornell_box_renders_like_the_golden_image() {
 #[test]
 fn a_brighter_or_moved_light_fails_the_comparison() {
     let golden = RgbImage::read_exr(&golden_path()).expect("the golden image");
-    let dir = common::temp_dir("golden", "changed");
-    let brighter = render(&dir, |mut l| {
+    let brighter = render("golden-brighter", |mut l| {
         l.intensity = l.intensity.map(|i| i * 1.05);
         l
     });
     let d = difference(&brighter, &golden);
     eprintln!("5 % brighter: {d:?}");
     assert!(!d.passes(), "5 % more light passes: {d:?}");
-    let moved = render(&dir, |mut l| {
+    let moved = render("golden-moved", |mut l| {
         l.position.x += 0.05;
         l
     });

@@ -342,10 +342,8 @@ fn adaptive_shadow_rays_only_refine_the_penumbra() {
 #[test]
 #[ignore]
 fn relight_figures_for_a_baked_file() {
-    let Ok(path) = std::env::var("MLT_RELIGHT_FILE") else {
-        eprintln!("MLT_RELIGHT_FILE is not set");
-        return;
-    };
+    let path = std::env::var("MLT_RELIGHT_FILE")
+        .expect("set MLT_RELIGHT_FILE to the baked file to measure");
     let frames: usize = std::env::var("MLT_RELIGHT_FRAMES")
         .ok()
         .and_then(|v| v.parse().ok())

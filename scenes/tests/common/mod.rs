@@ -1,7 +1,7 @@
 //! Helpers shared by the integration tests.
 #![allow(dead_code, unused_imports)]
 
-pub use mlt_test_support::{shared_scene, TempDir};
+pub use mlt_test_support::{shared_manifest, shared_scene, TempDir};
 
 /// Deterministic unit vectors (splitmix64 → uniform on the sphere).
 pub fn directions(n: usize, seed: u64) -> Vec<glam::Vec3> {

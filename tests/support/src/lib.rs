@@ -6,6 +6,10 @@
 //! (`../shared/scenes` from the workspace root), or wherever `MLT_SHARED` points. A test that
 //! needs one asks [`shared_scene`], which panics with the path it looked at when the scene is
 //! missing: a missing scene fails the test, it never lets it pass without checking anything.
+//!
+//! The repository's manifests of these scenes (`scenes/*.toml`) name their meshes as
+//! `../../shared/scenes/...`, relative to the manifest; [`shared_manifest`] gives a copy that
+//! points at the shared folder wherever it is (a worktree elsewhere, `MLT_SHARED`).
 
 use std::ops::Deref;
 use std::path::{Path, PathBuf};
@@ -50,6 +54,51 @@ pub fn shared_scene(relative: &str) -> PathBuf {
         panic!("{}", missing_message(&p));
     }
     p
+}
+
+/// How the repository's manifests name the shared scenes (relative to `scenes/`).
+const MANIFEST_PREFIX: &str = "\"../../shared/scenes/";
+
+/// A copy of a repository manifest whose mesh lies in the shared scenes, with the mesh's path
+/// made absolute under [`shared_scenes`]; the copy (same file name) lives as long as this.
+#[derive(Debug)]
+pub struct SharedManifest {
+    path: PathBuf,
+    _dir: TempDir,
+}
+
+impl SharedManifest {
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The copy as a scene specification.
+    pub fn spec(&self) -> String {
+        self.path.display().to_string()
+    }
+}
+
+/// Copies `manifest` (a repository manifest naming its mesh `../../shared/scenes/...`) with
+/// the mesh's path pointed at [`shared_scenes`].
+///
+/// # Panics
+/// When the shared scenes are missing, or the manifest cannot be read or names no shared scene.
+pub fn shared_manifest(manifest: &Path) -> SharedManifest {
+    let scenes = shared_scenes();
+    let text = std::fs::read_to_string(manifest)
+        .unwrap_or_else(|e| panic!("cannot read {}: {e}", manifest.display()));
+    assert!(
+        text.contains(MANIFEST_PREFIX),
+        "{} names no mesh under {MANIFEST_PREFIX}",
+        manifest.display()
+    );
+    let absolute = format!("\"{}/", scenes.display());
+    let name = manifest.file_name().expect("a manifest file name");
+    let dir = TempDir::new("manifest");
+    let path = dir.join(name);
+    std::fs::write(&path, text.replace(MANIFEST_PREFIX, &absolute))
+        .unwrap_or_else(|e| panic!("cannot write {}: {e}", path.display()));
+    SharedManifest { path, _dir: dir }
 }
 
 /// Whether `shared/scenes/relative` exists (for tests whose subject is the scene's absence).
