@@ -2,7 +2,7 @@
 # Error against run time (issue 5): for one scene, bake with a range of settings (epsilon, and
 # gather rays and receiver levels at the paper's epsilon), and for each record the bake time,
 # links, file size, the median per-frame CPU relighting time with a moving light, and the error
-# of the headless indirect and final images against the brute-force reference (view --headless
+# of the headless indirect and final images against the brute-force reference (view render
 # --reference) for several light positions (averaged over the lights).
 #
 # Usage: scripts/sweep_error.sh SCENE NAME [OUT_PREFIX]
@@ -18,7 +18,8 @@
 #   FRAMES      frames of the moving-light timing [16]
 #   WORK        scratch directory [target/sweep_NAME]
 #   BIN         directory of the release binaries [target/release]
-# Build first: cargo build --release -p mlt-bake -p mlt-view
+# Build first: cargo build --release -p mlt-bake -p mlt-view -p mlt-plot
+# (plot_sweep is the package mlt-plot, in scripts/plot_sweep).
 set -euo pipefail
 
 SCENE=${1:?usage: sweep_error.sh SCENE NAME [OUT_PREFIX]}
@@ -37,8 +38,8 @@ eps 0.025|1|--epsilon 0.025
 eps 0.0125|0|--epsilon 0.0125
 eps 0.025, 64 rays|0|--epsilon 0.025 --gather-rays 64
 eps 0.025, 5 levels|0|--epsilon 0.025 --receiver-levels 5"}
-for b in bake view compare plot_sweep; do
-  [[ -x $BIN/$b ]] || { echo "missing $BIN/$b: cargo build --release -p mlt-bake -p mlt-view" >&2; exit 1; }
+for b in bake view plot_sweep; do
+  [[ -x $BIN/$b ]] || { echo "missing $BIN/$b: cargo build --release -p mlt-bake -p mlt-view -p mlt-plot" >&2; exit 1; }
 done
 mkdir -p "$WORK" "$(dirname "$OUT")"
 CMD="scripts/sweep_error.sh $SCENE $NAME (WIDTH=$WIDTH HEIGHT=$HEIGHT SPP=$SPP FRAMES=$FRAMES LIGHTS=\"${LIGHTS:-default}\")"
@@ -56,7 +57,7 @@ while IFS= read -r line; do
     "$BIN/bake" "$SCENE" -o "$f" --stats-json "$WORK/s$i.json" -q $args >&2
   fi
   if [[ ! -s $WORK/s$i.frames.json ]]; then
-    "$BIN/view" "$f" --frames "$FRAMES" --timings-out "$WORK/s$i.frames.json" >&2
+    "$BIN/view" timings "$f" --frames "$FRAMES" --timings-out "$WORK/s$i.frames.json" >&2
   fi
   FILES[i]=$f; LABELS[i]=$label; PAPERS[i]=$paper
   i=$((i + 1))
@@ -74,7 +75,7 @@ for L in $LIGHTS; do
   r=$WORK/ref$k
   if [[ ! -s $r/reference.json ]]; then
     echo "== reference, light $L, $SPP spp" >&2
-    "$BIN/view" "${FILES[0]}" --headless --out "$r" --width "$WIDTH" --height "$HEIGHT" \
+    "$BIN/view" render "${FILES[0]}" --out "$r" --width "$WIDTH" --height "$HEIGHT" \
       --light-pos "$L" --reference "$SPP" >&2
   fi
   k=$((k + 1))
@@ -89,8 +90,8 @@ for ((i = 0; i < n; i++)); do
   k=0; cmps=()
   for L in $LIGHTS; do
     d=$s.light$k
-    "$BIN/view" "${FILES[i]}" --headless --out "$d" --width "$WIDTH" --height "$HEIGHT" --light-pos "$L" >&2
-    "$BIN/compare" "$WORK/ref$k" "$d" --json >"$d.cmp.json"
+    "$BIN/view" render "${FILES[i]}" --out "$d" --width "$WIDTH" --height "$HEIGHT" --light-pos "$L" >&2
+    "$BIN/view" compare "$WORK/ref$k" "$d" --json >"$d.cmp.json"
     cmps+=("$d.cmp.json")
     k=$((k + 1))
   done
@@ -116,7 +117,7 @@ MD=$OUT.md
   echo "# Error against run time: $NAME"
   echo
   echo "Made by \`$CMD\` on $(nproc) cores ($(date -u +%Y-%m-%d))."
-  echo "Errors are against the brute-force path-traced reference (\`view --headless --reference $SPP\`,"
+  echo "Errors are against the brute-force path-traced reference (\`view render --reference $SPP\`,"
   echo "${WIDTH}x${HEIGHT} pixels), on luminance, averaged over $nl light position(s): $LIGHTS."
   echo "Relative RMSE = RMS(test - ref) / mean(ref); mean rel. error over lit pixels (ref > 1 % of its mean);"
   echo "ratio = mean(test) / mean(ref). The reference's own noise floor under the relative RMSE is given last."

@@ -83,7 +83,7 @@ pub fn children(ib: &IndexedBasis) -> Csr {
 mod tests {
     use super::*;
     use crate::kernel::weight;
-    use crate::shepard::tests::plane_basis;
+    use crate::test_support::plane_basis;
 
     #[test]
     fn relations_match_their_definitions() {

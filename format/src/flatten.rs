@@ -93,7 +93,7 @@ pub fn reconstruct_flat(
 mod tests {
     use super::*;
     use crate::pull_push::project;
-    use crate::shepard::tests::plane_basis;
+    use crate::test_support::plane_basis;
 
     #[test]
     fn flat_coefficients_are_the_hierarchical_values_at_the_points() {

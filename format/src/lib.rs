@@ -5,12 +5,16 @@
 //! - [`basis`]: the hierarchical point set; [`rtree`]: one R-tree per level;
 //! - [`shepard`]: per-level Shepard basis (Eq. 2) and hierarchical reconstruction (Eq. 6);
 //! - [`pull_push`]: coarse-to-fine projection `P` (Eq. 7) and pull-push `P-dagger`;
-//! - [`flatten`]: resampling to a single level, [`flatten_op`]: its precomputed sparse
-//!   operator; [`adjacency`]: neighbours, parents, children; [`morton`]: the point order;
+//! - [`flatten`]: resampling to a single level (the reference the viewer's precomputed
+//!   operator is tested against); [`adjacency`]: neighbours, parents, children; [`morton`]:
+//!   the point order;
+//! - [`links`]: the stored direct-to-indirect operator `S`;
 //! - [`container`], [`meta`], [`file`]: the versioned, memory-mappable file; [`light`]: the
 //!   scene's light, from the manifest to the file.
 //!
-//! This crate depends on no mesh, GPU or windowing crate.
+//! The per-frame operators built from a file (precomputed pull-push, receiver-major links,
+//! sparse flattening) belong to the viewer's relighting crate, `mlt-relight`. This crate
+//! depends on no mesh, GPU or windowing crate.
 
 pub mod adjacency;
 pub mod basis;
@@ -18,7 +22,6 @@ pub mod container;
 pub mod error;
 pub mod file;
 pub mod flatten;
-pub mod flatten_op;
 pub mod kernel;
 pub mod light;
 pub mod links;
@@ -28,6 +31,8 @@ pub mod pull_push;
 pub mod rtree;
 pub mod shard;
 pub mod shepard;
+#[cfg(any(test, feature = "test-support"))]
+pub mod test_support;
 
 pub use basis::Basis;
 pub use error::FormatError;

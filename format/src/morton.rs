@@ -1,7 +1,7 @@
 //! Morton (Z-order) codes: the spatially coherent order in which the bake stores each level's
 //! points, so that neighbouring indices are neighbouring points. Products that walk points in
-//! index order then find the coefficients they read already in cache (the flattening operator,
-//! [`crate::flatten_op`], relies on it).
+//! index order then find the coefficients they read already in cache (the viewer's flattening
+//! operator relies on it).
 
 /// 63-bit Morton code of `p` quantised over the box `lo..hi` (21 bits per axis); points
 /// outside the box are clamped to it.

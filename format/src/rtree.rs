@@ -91,6 +91,46 @@ impl RTree {
         }
     }
 
+    /// Walks the tree depth first, left child before right: calls `descend(min, max)` with
+    /// the box of each node reached and enters the node only when it returns true, reaching
+    /// its children or, in a leaf, calling `leaf(j)` for each of its points in stored order.
+    /// Returns the number of nodes reached (every node `descend` saw). Allocation-free, with
+    /// the fixed stack of [`RTree::for_each_candidate`].
+    pub fn visit(
+        &self,
+        mut descend: impl FnMut([f32; 3], [f32; 3]) -> bool,
+        mut leaf: impl FnMut(u32),
+    ) -> usize {
+        if self.node_count.is_empty() {
+            return 0;
+        }
+        let mut stack = [0u32; MAX_DEPTH];
+        let mut sp = 0usize;
+        let mut node = 0usize;
+        let mut reached = 0usize;
+        loop {
+            reached += 1;
+            if descend(self.node_min[node], self.node_max[node]) {
+                let count = self.node_count[node] as usize;
+                if count == 0 {
+                    stack[sp] = self.node_first[node];
+                    sp += 1;
+                    node += 1;
+                    continue;
+                }
+                let first = self.node_first[node] as usize;
+                self.items[first..first + count]
+                    .iter()
+                    .for_each(|&j| leaf(j));
+            }
+            if sp == 0 {
+                return reached;
+            }
+            sp -= 1;
+            node = stack[sp] as usize;
+        }
+    }
+
     /// Calls `f(first, count, min, max)` for every node at `depth` (or leaf above it), the
     /// granularity at which a renderer culls groups of basis functions.
     pub fn for_each_node_at_depth(
@@ -353,6 +393,53 @@ mod tests {
             all.sort();
             assert_eq!(all, (0..500u32).collect::<Vec<_>>(), "depth {depth}");
         }
+    }
+
+    #[test]
+    fn visit_prunes_by_box_and_reaches_the_points_of_every_box_entered() {
+        let b = random_basis(700, 13);
+        let t = RTree::build(&b, 0..700);
+        // Entering every node reaches every node once and every point once, in stored order.
+        let mut all = Vec::new();
+        assert_eq!(t.visit(|_, _| true, |j| all.push(j)), t.node_count());
+        assert_eq!(all, t.items);
+        // Refusing the root reaches it alone.
+        let mut none = 0;
+        assert_eq!(t.visit(|_, _| false, |_| none += 1), 1);
+        assert_eq!(none, 0);
+        // A query box: the points reached whose spheres' boxes overlap it are exactly those of
+        // a brute-force search, and pruning skips part of the tree.
+        let (qlo, qhi) = ([2.0, 3.0, 1.0], [4.5, 6.0, 3.5]);
+        let overlaps =
+            |lo: [f32; 3], hi: [f32; 3]| (0..3).all(|a| lo[a] <= qhi[a] && hi[a] >= qlo[a]);
+        let sphere_box = |j: u32| {
+            let (c, r) = (b.positions[j as usize], b.radii[j as usize]);
+            (
+                [c[0] - r, c[1] - r, c[2] - r],
+                [c[0] + r, c[1] + r, c[2] + r],
+            )
+        };
+        let mut found = Vec::new();
+        let reached = t.visit(overlaps, |j| {
+            let (lo, hi) = sphere_box(j);
+            if overlaps(lo, hi) {
+                found.push(j);
+            }
+        });
+        found.sort();
+        let brute: Vec<u32> = (0..700u32)
+            .filter(|&j| {
+                let (lo, hi) = sphere_box(j);
+                overlaps(lo, hi)
+            })
+            .collect();
+        assert!(!brute.is_empty());
+        assert_eq!(found, brute);
+        assert!(reached < t.node_count(), "{reached} of {}", t.node_count());
+        assert_eq!(
+            RTree::default().visit(|_, _| true, |_| panic!("no points")),
+            0
+        );
     }
 
     #[test]

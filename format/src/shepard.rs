@@ -151,39 +151,9 @@ impl IndexedBasis {
 }
 
 #[cfg(test)]
-pub(crate) mod tests {
+mod tests {
     use super::*;
-
-    /// Points on a jittered grid on the unit square (z = 0, normal +z) on `levels` levels,
-    /// each level twice as dense, radii `C R` as the paper.
-    pub(crate) fn plane_basis(levels: usize, coarse_n: usize) -> IndexedBasis {
-        let mut b = Basis::default();
-        b.level_offsets.push(0);
-        let mut s = 12345u64;
-        let mut rnd = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((s >> 40) as f32) / (1u64 << 24) as f32 - 0.5
-        };
-        for l in 0..levels {
-            let n = coarse_n << l;
-            let spacing = 1.0 / n as f32;
-            let c = crate::kernel::support_factor(l, levels, 1.5, 2.5);
-            for iy in 0..=n {
-                for ix in 0..=n {
-                    let x = (ix as f32 + 0.3 * rnd()) * spacing;
-                    let y = (iy as f32 + 0.3 * rnd()) * spacing;
-                    b.positions.push([x, y, 0.0]);
-                    b.normals.push([0.0, 0.0, 1.0]);
-                    b.radii.push(c * spacing);
-                }
-            }
-            b.level_offsets.push(b.positions.len() as u32);
-            b.disk_radii.push(spacing);
-        }
-        IndexedBasis::build(b).unwrap()
-    }
+    use crate::test_support::plane_basis;
 
     #[test]
     fn partition_of_unity_on_every_level() {

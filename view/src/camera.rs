@@ -1,4 +1,4 @@
-//! The pinhole camera of DESIGN.md: position, target, up, vertical field of view in degrees,
+//! The pinhole camera: position, target, up, vertical field of view in degrees,
 //! width x height pixels. Pixel `(px, py)` has its centre at `(px + 0.5, py + 0.5)`, row 0 at
 //! the top of the image. The GPU rasteriser and the CPU reference integrator both use these
 //! definitions, so their images line up pixel for pixel.
@@ -118,6 +118,18 @@ impl Camera {
         )
     }
 
+    /// The view-projection with reversed depth (near plane `planes.0` at depth 1, far plane
+    /// `planes.1` at 0), as the G-buffer draws with it: floats are densest near 0, so reversed
+    /// depth spreads their precision evenly over distance, whatever the scene's scale.
+    pub fn reversed_view_proj(&self, planes: (f32, f32)) -> Mat4 {
+        glam::camera::rh::proj::directx::perspective(
+            self.fovy_deg.to_radians(),
+            self.aspect(),
+            planes.1,
+            planes.0,
+        ) * self.view_matrix()
+    }
+
     /// Near and far planes that enclose a scene with the given bounds: far beyond its farthest
     /// corner, near a fixed fraction (1e-4) of far, so that the planes scale with the scene.
     pub fn planes_for_bounds(&self, lo: Vec3, hi: Vec3) -> (f32, f32) {
@@ -187,6 +199,28 @@ mod tests {
                 "{sx},{sy} vs {px},{py}"
             );
         }
+    }
+
+    #[test]
+    fn reversed_depth_puts_the_near_plane_at_one_and_the_far_plane_at_zero() {
+        let c = cam();
+        let (near, far) = (0.1, 100.0);
+        let reversed = c.reversed_view_proj((near, far));
+        let forward = c.projection_matrix(near, far) * c.view_matrix();
+        let ndc = |m: Mat4, p: Vec3| {
+            let clip = m * p.extend(1.0);
+            clip.truncate() / clip.w
+        };
+        let dir = c.ray_direction(30.5, 70.5);
+        let depth_along = |d: f32| ndc(reversed, c.position + dir * d);
+        // Distances along the ray that land on the planes (the ray is not along the axis).
+        let axial = dir.dot((c.target - c.position).normalize());
+        assert!((depth_along(near / axial).z - 1.0).abs() < 1e-4);
+        assert!(depth_along(far / axial).z.abs() < 1e-4);
+        let p = c.position + dir * 7.0;
+        let (r, f) = (ndc(reversed, p), ndc(forward, p));
+        assert!((r.x - f.x).abs() < 1e-5 && (r.y - f.y).abs() < 1e-5);
+        assert!(r.z > depth_along(8.0).z, "depth decreases with distance");
     }
 
     #[test]

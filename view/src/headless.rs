@@ -1,18 +1,17 @@
-//! Headless rendering: relight on the CPU, render on the GPU without a window, write the
-//! linear buffers (OpenEXR), a tone-mapped PNG and per-stage timings.
+//! Headless rendering: frames of [`crate::frame`] drawn without a window, then the linear
+//! buffers (OpenEXR), tone-mapped PNGs and per-stage timings written.
 
 use std::path::Path;
 
 use glam::Vec3;
-use mlt_format::IndexedBasis;
+use mlt_relight::{Light, StageTimes};
 use serde::Serialize;
 
 use crate::camera::Camera;
+use crate::frame::{FrameDriver, Redraw};
 use crate::gpu::context::AdapterReport;
-use crate::gpu::{Buffers, Gpu, GpuError, RenderTimes, Renderer};
+use crate::gpu::{Buffers, GpuError, RenderTimes};
 use crate::images::ImageError;
-use crate::light::Light;
-use crate::relight::{Relight, StageTimes};
 
 /// Errors of a headless render.
 #[derive(Debug, thiserror::Error)]
@@ -46,7 +45,7 @@ pub struct Timings {
     pub adapter: AdapterReport,
     pub accumulation_format: String,
     /// The relighter's one-time set-up (precomputed operators), when it reports one.
-    pub load: Option<crate::relight::LoadStats>,
+    pub load: Option<mlt_relight::LoadStats>,
 }
 
 #[derive(Clone, Debug, Default, Serialize)]
@@ -88,45 +87,10 @@ pub fn light_on_path(light: &Light, radius: f32, f: u32, n: u32) -> Light {
     l
 }
 
-/// Hands a relit frame to the renderer: the hierarchical coefficients when it flattens on the
-/// GPU, else the flat ones. Returns the GPU flattening time (0 on the CPU path).
-pub fn upload(
-    gpu: &Gpu,
-    renderer: &Renderer,
-    frame: &crate::relight::Frame,
-    timed: bool,
-) -> Result<f64, GpuError> {
-    if renderer.flattens_on_gpu() && frame.flat.is_empty() {
-        renderer.set_hierarchical_coefficients(gpu, &frame.i, timed)
-    } else {
-        renderer.set_coefficients(gpu, &frame.flat);
-        Ok(0.0)
-    }
-}
-
-/// Moves flattening to the GPU when the relighter has the precomputed operator: returns the
-/// operator's bytes on the GPU, or `None` (flattening stays on the CPU).
-pub fn flatten_on_gpu(
-    gpu: &Gpu,
-    renderer: &mut Renderer,
-    relighter: &mut dyn Relight,
-) -> Result<Option<u64>, GpuError> {
-    let Some(op) = relighter.flatten_operator() else {
-        return Ok(None);
-    };
-    let bytes = renderer.enable_gpu_flatten(gpu, op)?;
-    relighter.set_flatten_on_cpu(false);
-    Ok(Some(bytes))
-}
-
 /// Renders `frames` frames (the light moving on [`light_on_path`] when more than one), then
 /// the requested light, and returns the buffers of the latter with median timings.
-#[allow(clippy::too_many_arguments)]
 pub fn render(
-    gpu: &Gpu,
-    renderer: &mut Renderer,
-    relighter: &mut dyn Relight,
-    ib: &IndexedBasis,
+    driver: &mut FrameDriver<'_>,
     camera: &Camera,
     light: &Light,
     frames: u32,
@@ -144,23 +108,18 @@ pub fn render(
         } else {
             *light
         };
-        let frame = relighter.relight(&l);
-        cpu.push(frame.times);
-        senders.push(frame.senders_used as f64);
-        rays.push(frame.shadow_rays as f64);
-        let flatten_ms = upload(gpu, renderer, frame, true)?;
         // Every frame is a full frame: the camera is redrawn too, as when a window resizes.
-        renderer.invalidate();
-        let mut t = renderer.render(gpu, ib, camera, &l, true)?;
-        t.flatten_ms = flatten_ms;
-        gpu_times.push(t);
+        let drawn = driver.draw(camera, &l, Redraw::Full, true)?;
+        cpu.push(drawn.frame.times);
+        senders.push(drawn.frame.senders_used as f64);
+        rays.push(drawn.frame.shadow_rays as f64);
+        gpu_times.push(drawn.gpu);
     }
     if moving {
-        let frame = relighter.relight(light);
-        upload(gpu, renderer, frame, false)?;
-        renderer.render(gpu, ib, camera, light, false)?;
+        driver.draw(camera, light, Redraw::Lighting, false)?;
     }
-    let buffers = renderer.read_buffers(gpu)?;
+    let (gpu, ib) = (driver.gpu, driver.ib);
+    let buffers = driver.renderer.read_buffers(gpu)?;
     let m = |f: &dyn Fn(&StageTimes) -> f64| median(cpu.iter().map(f).collect());
     let cpu_median_ms = CpuMedians {
         direct: m(&|t| t.direct_ms),
@@ -194,7 +153,7 @@ pub fn render(
         median_senders_used: median(senders),
         median_shadow_rays_cast: median(rays),
         adapter: gpu.report.clone(),
-        accumulation_format: format!("{:?}", renderer.accumulation_format()),
+        accumulation_format: format!("{:?}", driver.renderer.accumulation_format()),
         load: None,
     };
     Ok((buffers, timings))

@@ -1,18 +1,18 @@
-//! The viewer's library: camera and light models, per-frame CPU relighting (section 3.3), the
-//! wgpu renderer (section 4.1), headless rendering and the window.
+//! The viewer's library: the camera model, the wgpu renderer (section 4.1), the frame driver
+//! that the window and headless rendering share, the path-traced reference and the image
+//! comparison, on top of the per-frame relighting of `mlt-relight` (section 3.3; its main types
+//! are re-exported here).
 
 pub mod camera;
 pub mod compare;
+pub mod frame;
 pub mod gpu;
 pub mod headless;
 pub mod images;
-pub mod light;
 pub mod probe;
 pub mod reference;
-pub mod relight;
 pub mod window;
 
 pub use camera::Camera;
 pub use images::RgbImage;
-pub use light::Light;
-pub use relight::{CpuRelighter, Frame, Relight, StageTimes};
+pub use mlt_relight::{CpuRelighter, Frame, Light, Relight, StageTimes};

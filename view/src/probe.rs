@@ -10,10 +10,8 @@ use std::path::Path;
 use glam::Vec3;
 use mlt_format::links::LINK_DIM;
 use mlt_format::IndexedBasis;
+use mlt_relight::{Frame, Light};
 use mlt_scenes::RayCaster;
-
-use crate::light::Light;
-use crate::relight::Frame;
 
 /// A probe point.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -1,8 +1,8 @@
 //! An independent brute-force reference: Monte Carlo path tracing of the same scene, light and
 //! camera as the viewer, using nothing of the meshless basis (only the scene's [`RayCaster`]
-//! and the light model of [`crate::light`]). It exists to measure the viewer's error against.
+//! and the light model of [`mlt_relight::light`]). It exists to measure the viewer's error against.
 //!
-//! # What it computes (DESIGN.md conventions)
+//! # What it computes
 //!
 //! Surfaces are Lambertian: outgoing radiance `L = ρ/π · E`. Per pixel the primary ray goes
 //! through the pixel centre ([`Camera::ray_direction`]`(px + 0.5, py + 0.5)`) to the first hit
@@ -43,12 +43,12 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use glam::Vec3;
+use mlt_relight::Light;
 use mlt_scenes::RayCaster;
 use rayon::prelude::*;
 
 use crate::camera::Camera;
 use crate::images::{luminance, ImageError, RgbImage};
-use crate::light::Light;
 use crate::probe::Probe;
 
 /// Errors of the reference renderer.
@@ -223,6 +223,11 @@ const DOMAIN_PROBE: u64 = 0x5052_4F42_4500;
 fn positive(x: f32) -> bool {
     x > 0.0
 }
+
+// `onb` and `cosine_sample` are `mlt_bake::sampling::{tangent_frame, cosine_hemisphere}`
+// operation for operation; they stay here until that code moves to a crate the viewer depends
+// on (mlt-scenes), since the viewer cannot depend on the bake. The random streams stay the
+// reference's own: independent of the bake's, so the reference shares no sample with it.
 
 /// An orthonormal basis around the unit vector `n` (Duff et al. 2017).
 fn onb(n: Vec3) -> (Vec3, Vec3) {

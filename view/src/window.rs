@@ -15,6 +15,7 @@ use std::time::Instant;
 use anyhow::{anyhow, bail, Context, Result};
 use glam::{Quat, Vec3};
 use mlt_format::IndexedBasis;
+use mlt_relight::{Light, Relight, StageTimes};
 use mlt_scenes::Scene;
 use winit::application::ApplicationHandler;
 use winit::event::{ElementState, MouseButton, WindowEvent};
@@ -23,11 +24,10 @@ use winit::keyboard::{KeyCode, PhysicalKey};
 use winit::window::{Window, WindowId};
 
 use crate::camera::Camera;
+use crate::frame::{FrameDriver, Redraw};
 use crate::gpu::mesh::GpuMesh;
 use crate::gpu::{Gpu, Renderer, ViewMode};
 use crate::images::{luminance, ToneMap};
-use crate::light::Light;
-use crate::relight::{Relight, StageTimes};
 
 /// What the window starts from.
 pub struct WindowSetup<'a> {
@@ -59,11 +59,11 @@ pub fn run(setup: WindowSetup<'_>) -> Result<()> {
     if !display_available() {
         bail!(
             "no display: DISPLAY is not set, so no window can open. Render to files instead with \
-             --headless --out DIR (or start an X server, e.g. xvfb-run)"
+             `view render FILE --out DIR` (or start an X server, e.g. xvfb-run)"
         );
     }
     let event_loop = EventLoop::new().map_err(|e| {
-        anyhow!("cannot open the display ({e}); render to files instead with --headless --out DIR")
+        anyhow!("cannot open the display ({e}); render to files instead with `view render FILE --out DIR`")
     })?;
     event_loop.set_control_flow(ControlFlow::Poll);
     let mut app = App {
@@ -162,7 +162,13 @@ impl App<'_> {
         let mesh = GpuMesh::from_scene(self.setup.scene);
         let mut renderer = Renderer::new(&gpu, &mesh, &self.setup.ib.basis, self.setup.shadow_res)?;
         if self.setup.gpu_flatten.unwrap_or(!gpu.is_software()) {
-            crate::headless::flatten_on_gpu(&gpu, &mut renderer, &mut *self.setup.relighter)?;
+            FrameDriver {
+                gpu: &gpu,
+                renderer: &mut renderer,
+                relighter: &mut *self.setup.relighter,
+                ib: self.setup.ib,
+            }
+            .flatten_on_gpu()?;
         }
         let mut camera = cam;
         camera.width = config.width;
@@ -212,10 +218,16 @@ impl App<'_> {
         s.last_tick = now;
         move_with_keys(s, dt);
 
-        let frame = self.setup.relighter.relight(&s.light);
-        if !frame.reused {
-            crate::headless::upload(&s.gpu, &s.renderer, frame, false)?;
-            s.renderer.invalidate();
+        let mut driver = FrameDriver {
+            gpu: &s.gpu,
+            renderer: &mut s.renderer,
+            relighter: &mut *self.setup.relighter,
+            ib: self.setup.ib,
+        };
+        let drawn = driver.draw(&s.camera, &s.light, Redraw::WhenRelit, false)?;
+        let times = drawn.gpu;
+        if !drawn.frame.reused {
+            let frame = drawn.frame;
             s.stage = frame.times;
             s.flat_max = max_irradiance(if frame.flat.is_empty() {
                 &frame.i
@@ -224,9 +236,6 @@ impl App<'_> {
             });
             s.tone_dirty = true;
         }
-        let times = s
-            .renderer
-            .render(&s.gpu, self.setup.ib, &s.camera, &s.light, false)?;
         if times.gbuffer_ms > 0.0 || times.cull_ms > 0.0 {
             s.tone_dirty = true;
         }
@@ -406,6 +415,73 @@ fn turn(s: &mut State, dx: f32, dy: f32) {
     }
 }
 
+/// What a key press asks of the event loop.
+enum KeyAction {
+    Nothing,
+    Exit,
+    Screenshot,
+}
+
+/// Acts on a key going down; `start` is the camera and light that R resets to.
+fn press(s: &mut State, code: KeyCode, start: (Camera, Light)) -> KeyAction {
+    match code {
+        KeyCode::Escape => return KeyAction::Exit,
+        KeyCode::KeyP => return KeyAction::Screenshot,
+        KeyCode::KeyV => s.mode = s.mode.next(),
+        KeyCode::KeyO => s.orbit = !s.orbit,
+        KeyCode::KeyH => {
+            s.renderer.shadows = !s.renderer.shadows;
+            s.renderer.invalidate();
+        }
+        KeyCode::BracketLeft => s.level = s.level.saturating_sub(1),
+        KeyCode::BracketRight => s.level = (s.level + 1).min(s.renderer.levels().saturating_sub(1)),
+        KeyCode::KeyR => {
+            let (w, h) = (s.camera.width, s.camera.height);
+            s.camera = start.0;
+            s.camera.width = w;
+            s.camera.height = h;
+            s.light = start.1;
+        }
+        _ => {}
+    }
+    KeyAction::Nothing
+}
+
+/// The cursor moved to `position`: a left drag turns the camera, a right drag moves the light
+/// in the camera's image plane.
+fn drag_to(s: &mut State, position: (f64, f64)) {
+    s.cursor = position;
+    let Some((button, last)) = s.drag else {
+        return;
+    };
+    let (dx, dy) = ((position.0 - last.0) as f32, (position.1 - last.1) as f32);
+    s.drag = Some((button, s.cursor));
+    match button {
+        MouseButton::Left => turn(s, dx, dy),
+        MouseButton::Right => {
+            let (right, up, _) = s.camera.frame();
+            let d = (s.light.position - s.camera.position).length();
+            let k = d * 2.0 * (0.5 * s.camera.fovy_deg.to_radians()).tan() / s.camera.height as f32;
+            s.light.position += (right * dx - up * dy) * k;
+        }
+        _ => {}
+    }
+}
+
+impl App<'_> {
+    /// Saves a screenshot of every view mode as `window-MODE.png`.
+    fn save_every_view(&mut self) -> Result<()> {
+        for mode in ViewMode::ALL {
+            if let Some(s) = self.state.as_mut() {
+                s.mode = mode;
+                s.level = s.renderer.levels() / 2;
+            }
+            self.screenshot(&format!("window-{}", mode.name().replace(' ', "-")))?;
+        }
+        Ok(())
+    }
+}
+
 impl ApplicationHandler for App<'_> {
     fn resumed(&mut self, event_loop: &ActiveEventLoop) {
         if self.state.is_some() {
@@ -434,35 +510,17 @@ impl ApplicationHandler for App<'_> {
                 }
                 WindowEvent::KeyboardInput { event, .. } => {
                     if let PhysicalKey::Code(code) = event.physical_key {
-                        if event.state == ElementState::Pressed {
+                        if event.state != ElementState::Pressed {
+                            s.keys.remove(&code);
+                        } else {
                             s.keys.insert(code);
                             if !event.repeat {
-                                match code {
-                                    KeyCode::Escape => event_loop.exit(),
-                                    KeyCode::KeyV => s.mode = s.mode.next(),
-                                    KeyCode::KeyO => s.orbit = !s.orbit,
-                                    KeyCode::KeyH => {
-                                        s.renderer.shadows = !s.renderer.shadows;
-                                        s.renderer.invalidate();
-                                    }
-                                    KeyCode::BracketLeft => s.level = s.level.saturating_sub(1),
-                                    KeyCode::BracketRight => {
-                                        s.level =
-                                            (s.level + 1).min(s.renderer.levels().saturating_sub(1))
-                                    }
-                                    KeyCode::KeyP => screenshot = true,
-                                    KeyCode::KeyR => {
-                                        let (w, h) = (s.camera.width, s.camera.height);
-                                        s.camera = self.start_camera;
-                                        s.camera.width = w;
-                                        s.camera.height = h;
-                                        s.light = self.start_light;
-                                    }
-                                    _ => {}
+                                match press(s, code, (self.start_camera, self.start_light)) {
+                                    KeyAction::Exit => event_loop.exit(),
+                                    KeyAction::Screenshot => screenshot = true,
+                                    KeyAction::Nothing => {}
                                 }
                             }
-                        } else {
-                            s.keys.remove(&code);
                         }
                     }
                 }
@@ -470,23 +528,7 @@ impl ApplicationHandler for App<'_> {
                     s.drag = (state == ElementState::Pressed).then_some((button, s.cursor));
                 }
                 WindowEvent::CursorMoved { position, .. } => {
-                    s.cursor = (position.x, position.y);
-                    if let Some((button, last)) = s.drag {
-                        let (dx, dy) = ((position.x - last.0) as f32, (position.y - last.1) as f32);
-                        s.drag = Some((button, s.cursor));
-                        match button {
-                            MouseButton::Left => turn(s, dx, dy),
-                            MouseButton::Right => {
-                                // Drag the light in the camera's image plane.
-                                let (right, up, _) = s.camera.frame();
-                                let d = (s.light.position - s.camera.position).length();
-                                let k = d * 2.0 * (0.5 * s.camera.fovy_deg.to_radians()).tan()
-                                    / s.camera.height as f32;
-                                s.light.position += (right * dx - up * dy) * k;
-                            }
-                            _ => {}
-                        }
-                    }
+                    drag_to(s, (position.x, position.y));
                 }
                 WindowEvent::RedrawRequested => {
                     if let Err(e) = self.frame() {
@@ -511,16 +553,8 @@ impl ApplicationHandler for App<'_> {
             _ => false,
         };
         if done {
-            for mode in ViewMode::ALL {
-                if let Some(s) = self.state.as_mut() {
-                    s.mode = mode;
-                    s.level = s.renderer.levels() / 2;
-                }
-                let name = format!("window-{}", mode.name().replace(' ', "-"));
-                if let Err(e) = self.screenshot(&name) {
-                    self.error = Some(e);
-                    break;
-                }
+            if let Err(e) = self.save_every_view() {
+                self.error = Some(e);
             }
             event_loop.exit();
         }

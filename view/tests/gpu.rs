@@ -217,22 +217,15 @@ fn cornell_ceiling_is_lit_only_indirectly_and_walls_bleed_colour() {
 }
 
 #[test]
-fn headless_cli_writes_finite_non_black_images_and_timings() {
+fn render_cli_writes_finite_non_black_images_and_timings() {
     let d = temp("cli");
     let f = d.join("cornell.mlt");
     bake_to(&f, "builtin:cornell", cornell_options());
     let out = d.join("out");
     let r = Command::new(env!("CARGO_BIN_EXE_view"))
+        .arg("render")
         .arg(&f)
-        .args([
-            "--headless",
-            "--width",
-            "64",
-            "--height",
-            "48",
-            "--frames",
-            "3",
-        ])
+        .args(["--width", "64", "--height", "48", "--frames", "3"])
         .arg("--out")
         .arg(&out)
         .output()
@@ -258,16 +251,9 @@ fn headless_cli_writes_finite_non_black_images_and_timings() {
     for flatten in ["cpu", "gpu"] {
         let dir = d.join(flatten);
         let r = Command::new(env!("CARGO_BIN_EXE_view"))
+            .arg("render")
             .arg(&f)
-            .args([
-                "--headless",
-                "--width",
-                "64",
-                "--height",
-                "48",
-                "--flatten",
-                flatten,
-            ])
+            .args(["--width", "64", "--height", "48", "--flatten", flatten])
             .arg("--out")
             .arg(&dir)
             .output()
@@ -281,7 +267,7 @@ fn headless_cli_writes_finite_non_black_images_and_timings() {
 }
 
 #[test]
-fn window_without_a_display_says_so_and_suggests_headless() {
+fn window_without_a_display_says_so_and_suggests_view_render() {
     let d = temp("nodisplay");
     let f = d.join("cornell.mlt");
     bake_to(
@@ -295,6 +281,7 @@ fn window_without_a_display_says_so_and_suggests_headless() {
         },
     );
     let r = Command::new(env!("CARGO_BIN_EXE_view"))
+        .arg("open")
         .arg(&f)
         .env_remove("DISPLAY")
         .env_remove("WAYLAND_DISPLAY")
@@ -302,7 +289,7 @@ fn window_without_a_display_says_so_and_suggests_headless() {
         .unwrap();
     assert!(!r.status.success());
     let err = String::from_utf8_lossy(&r.stderr);
-    assert!(err.contains("--headless"), "{err}");
+    assert!(err.contains("view render"), "{err}");
 }
 
 #[test]

@@ -32,6 +32,20 @@ fn inside_camera(w: u32, h: u32) -> Camera {
     .unwrap()
 }
 
+/// The scene's own camera at `w` x `h` pixels.
+fn scene_camera(scene: &mlt_scenes::Scene, w: u32, h: u32) -> Camera {
+    let c = &scene.camera;
+    Camera::new(
+        c.position.into(),
+        c.target.into(),
+        c.up.into(),
+        c.fovy_deg,
+        w,
+        h,
+    )
+    .unwrap()
+}
+
 fn sphere(albedo: f32) -> Box<dyn mlt_scenes::RayCaster> {
     mlt_scenes::load_scene(&format!("builtin:sphere?albedo={albedo}&radius=2"))
         .unwrap()
@@ -44,7 +58,9 @@ fn render_sphere(albedo: f32, spp: u32, seed: u64) -> ReferenceImages {
     render_reference(caster.as_ref(), &inside_camera(24, 16), &light, spp, seed).unwrap()
 }
 
-/// Analytic indirect radiance in the closed sphere: `ρ/π · ρ/(1-ρ) · I/R²` (DESIGN.md).
+/// Analytic indirect radiance in the closed sphere of radius `R` with the light `I` at its
+/// centre: every point receives `E0 = I/R²` directly, each bounce scales the irradiance by `ρ`,
+/// so the indirect irradiance is `ρ/(1-ρ) · E0` and the radiance `ρ/π · ρ/(1-ρ) · I/R²`.
 fn analytic_indirect_radiance(albedo: f32) -> f64 {
     let e0 = 1.0 / 4.0;
     let rho = albedo as f64;
@@ -230,16 +246,7 @@ fn compare_reports_zero_for_identical_dirs_and_the_scale_of_a_scaled_image() {
     // The Cornell box: a real mesh, shadows and colour (also checks the tracer on a BVH).
     let scene = mlt_scenes::load_scene("builtin:cornell").unwrap();
     let caster = scene.build_caster();
-    let c = &scene.camera;
-    let camera = Camera::new(
-        c.position.into(),
-        c.target.into(),
-        c.up.into(),
-        c.fovy_deg,
-        20,
-        20,
-    )
-    .unwrap();
+    let camera = scene_camera(&scene, 20, 20);
     let light = Light::point(scene.light.position.into(), scene.light.intensity).unwrap();
     let r = render_reference(caster.as_ref(), &camera, &light, 8, 1).unwrap();
     assert!(r.indirect.all_finite() && r.final_image.all_finite());
@@ -275,8 +282,9 @@ fn compare_reports_zero_for_identical_dirs_and_the_scale_of_a_scaled_image() {
     assert!(s.final_image.relative_rmse >= 0.5 - 1e-6);
 
     // The binary: text and JSON, and errors that name the file.
-    let exe = env!("CARGO_BIN_EXE_compare");
+    let exe = env!("CARGO_BIN_EXE_view");
     let out = Command::new(exe)
+        .arg("compare")
         .args([&ref_dir, &test_dir])
         .arg("--json")
         .output()
@@ -290,6 +298,7 @@ fn compare_reports_zero_for_identical_dirs_and_the_scale_of_a_scaled_image() {
     assert!((v["indirect"]["ratio_of_means"].as_f64().unwrap() - 1.25).abs() < 1e-5);
     std::fs::remove_file(test_dir.join("final.exr")).unwrap();
     let out = Command::new(exe)
+        .arg("compare")
         .args([&ref_dir, &test_dir])
         .output()
         .unwrap();
@@ -321,6 +330,43 @@ fn compare_reports_zero_for_identical_dirs_and_the_scale_of_a_scaled_image() {
     );
 }
 
+/// `view reference SCENE`: the scene's camera and light with the command line's overrides, the
+/// same images as the library renders for them; no output asked for is an error.
+#[test]
+fn reference_cli_renders_the_scene_with_its_overrides() {
+    let dir = temp("cli");
+    let out = dir.join("out");
+    let exe = env!("CARGO_BIN_EXE_view");
+    let r = Command::new(exe)
+        .args([
+            "reference",
+            "builtin:cornell",
+            "--spp",
+            "4",
+            "--width",
+            "12",
+        ])
+        .args(["--height", "10", "--light-pos", "0.3,0.45,0.3", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let scene = mlt_scenes::load_scene("builtin:cornell").unwrap();
+    let camera = scene_camera(&scene, 12, 10);
+    let light = Light::point(Vec3::new(0.3, 0.45, 0.3), scene.light.intensity).unwrap();
+    let lib = render_reference(scene.build_caster().as_ref(), &camera, &light, 4, 1).unwrap();
+    let cli = RgbImage::read_exr(&out.join("reference_final.exr")).unwrap();
+    assert_eq!((cli.width, cli.height), (12, 10));
+    assert_eq!(cli.pixels, lib.final_image.pixels);
+
+    let r = Command::new(exe)
+        .args(["reference", "builtin:cornell"])
+        .output()
+        .unwrap();
+    assert!(!r.status.success());
+    assert!(String::from_utf8_lossy(&r.stderr).contains("nothing to do"));
+}
+
 fn write(path: &Path, s: &str) {
     std::fs::write(path, s).unwrap();
 }
@@ -346,7 +392,7 @@ fn probe_csvs_compare_row_by_row() {
     let dir = temp("probes");
     let rp = dir.join("ref.csv");
     write(&rp, &probes_to_csv(&probes, &v));
-    // A test CSV in view --probe-out's layout, indirect 1.1x the reference's; `shift` moves
+    // A test CSV in `view probe --probe-out`'s layout, indirect 1.1x the reference's; `shift` moves
     // the second probe.
     let test_csv = |shift: f32| {
         let mut t = String::from("x,y,z,nx,ny,nz,direct_r,direct_g,direct_b,direct_basis_r,direct_basis_g,direct_basis_b,indirect_r,indirect_g,indirect_b\n");

@@ -145,6 +145,7 @@ fn cornell_box_bleeds_red_and_green_onto_the_white_back_wall() {
     std::fs::write(&input, csv).unwrap();
     let output = d.join("out.csv");
     let r = Command::new(env!("CARGO_BIN_EXE_view"))
+        .arg("probe")
         .arg(&f)
         .arg("--probe")
         .arg(&input)
@@ -183,6 +184,7 @@ fn cornell_box_bleeds_red_and_green_onto_the_white_back_wall() {
     // Timings with a moving light, and the errors a user can make.
     let t = d.join("t.json");
     let r = Command::new(env!("CARGO_BIN_EXE_view"))
+        .arg("timings")
         .arg(&f)
         .args(["--frames", "3", "--timings-out"])
         .arg(&t)
@@ -196,6 +198,7 @@ fn cornell_box_bleeds_red_and_green_onto_the_white_back_wall() {
     }
     std::fs::write(&input, "1,2,3,0,0,1\n1,2,3\n").unwrap();
     let r = Command::new(env!("CARGO_BIN_EXE_view"))
+        .arg("probe")
         .arg(&f)
         .arg("--probe")
         .arg(&input)
@@ -205,7 +208,7 @@ fn cornell_box_bleeds_red_and_green_onto_the_white_back_wall() {
         .unwrap();
     assert!(!r.status.success());
     assert!(String::from_utf8_lossy(&r.stderr).contains("in.csv:2"));
-    // No window without a display: the viewer says so and points to --headless.
+    // No window without a display: the viewer says so and points to `view render`.
     let r = Command::new(env!("CARGO_BIN_EXE_view"))
         .arg(&f)
         .env_remove("DISPLAY")
@@ -213,7 +216,7 @@ fn cornell_box_bleeds_red_and_green_onto_the_white_back_wall() {
         .output()
         .unwrap();
     assert!(!r.status.success());
-    assert!(String::from_utf8_lossy(&r.stderr).contains("--headless"));
+    assert!(String::from_utf8_lossy(&r.stderr).contains("view render"));
 }
 
 fn bits(v: &[f32]) -> Vec<u32> {
@@ -335,94 +338,4 @@ fn adaptive_shadow_rays_only_refine_the_penumbra() {
         moved < 0.05 * total,
         "{changed} points moved {moved} of {total}"
     );
-}
-
-/// Load-time and per-frame figures on a baked file: `MLT_RELIGHT_FILE=F cargo test --release
-/// -p mlt-view --test relight -- --ignored --nocapture`.
-#[test]
-#[ignore]
-fn relight_figures_for_a_baked_file() {
-    let path = std::env::var("MLT_RELIGHT_FILE")
-        .expect("set MLT_RELIGHT_FILE to the baked file to measure");
-    let frames: usize = std::env::var("MLT_RELIGHT_FRAMES")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(20);
-    let file = BakedFile::open(std::path::Path::new(&path)).unwrap();
-    let meta = file.meta().unwrap();
-    let ib = file.basis().unwrap();
-    let tm = file.transport_meta().unwrap().unwrap();
-    let lb = file.links_bytes().unwrap().unwrap();
-    let links = file.access_links(&lb).unwrap();
-    let spec = std::env::var("MLT_RELIGHT_SCENE").unwrap_or(meta.scene.source.clone());
-    let scene = mlt_scenes::load_scene(&spec).unwrap();
-    let caster = scene.build_caster();
-    let mut light = Light::from_info(&meta.light).unwrap();
-    let mut r = CpuRelighter::new(
-        &ib,
-        links,
-        caster.as_ref(),
-        tm.params.sender_levels as usize,
-        8,
-    );
-    eprintln!("load: {:?}", r.load_stats());
-    let (lo, hi) = (
-        Vec3::from(meta.scene.bounds_min),
-        Vec3::from(meta.scene.bounds_max),
-    );
-    let radius = 0.05 * (hi - lo).length();
-    let centre = light.position;
-    let mut t: [Vec<f64>; 4] = Default::default();
-    let mut live = Vec::new();
-    for f in 0..frames {
-        let a = std::f32::consts::TAU * f as f32 / frames as f32;
-        light.position = centre + Vec3::new(radius * a.cos(), 0.0, radius * a.sin());
-        let frame = r.relight(&light);
-        t[0].push(frame.times.direct_ms);
-        t[1].push(frame.times.project_ms);
-        t[2].push(frame.times.transport_ms);
-        t[3].push(frame.times.flatten_ms);
-        live.push(
-            frame
-                .i
-                .chunks(LINK_DIM)
-                .filter(|c| c.iter().any(|&v| v != 0.0))
-                .count(),
-        );
-    }
-    let med = |v: &mut Vec<f64>| {
-        v.sort_by(|a, b| a.total_cmp(b));
-        v[v.len() / 2]
-    };
-    let m: Vec<f64> = t.iter_mut().map(med).collect();
-    eprintln!(
-        "median over {frames} frames: direct {:.2} ms, pull-push {:.3} ms, S e {:.2} ms, flatten {:.2} ms, total {:.2} ms; lit receivers {:?}",
-        m[0],
-        m[1],
-        m[2],
-        m[3],
-        m.iter().sum::<f64>(),
-        live.iter().min()
-    );
-    // The reference stages (R-tree queries per frame, f16 links), two frames.
-    let sl = tm.params.sender_levels as usize;
-    for _ in 0..2 {
-        let samples = r.direct(&light);
-        let t0 = std::time::Instant::now();
-        let (e, _) = pull_push_levels(&ib, &samples, 3, sl);
-        let t1 = std::time::Instant::now();
-        let mut i = vec![0.0f32; ib.basis.len() * LINK_DIM];
-        links.apply(&e, 0.0, &mut i);
-        let t2 = std::time::Instant::now();
-        let flat = flatten(&ib, &i, LINK_DIM);
-        let t3 = std::time::Instant::now();
-        let ms = |a: std::time::Instant, b: std::time::Instant| (b - a).as_secs_f64() * 1e3;
-        eprintln!(
-            "reference stages: pull-push {:.2} ms, S e (f16, sender-major) {:.2} ms, flatten {:.1} ms ({} values)",
-            ms(t0, t1),
-            ms(t1, t2),
-            ms(t2, t3),
-            flat.len()
-        );
-    }
 }

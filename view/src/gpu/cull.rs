@@ -1,7 +1,7 @@
-//! Frustum culling of the flat basis functions with the R-tree's nodes (section 4.1): a node
-//! whose box (which bounds its points' own support spheres, never smaller than the flat ones)
-//! lies outside a frustum plane is skipped with its whole subtree; in the leaves that remain,
-//! each flat support sphere is tested.
+//! Frustum culling of the flat basis functions with each level's R-tree (section 4.1), through
+//! its visitor (`RTree::visit`): a node whose box (which bounds its points' own support
+//! spheres, never smaller than the flat ones) lies outside a frustum plane is skipped with its
+//! whole subtree; in the leaves that remain, each flat support sphere is tested.
 
 use glam::{Mat4, Vec3, Vec4};
 use mlt_format::IndexedBasis;
@@ -64,35 +64,17 @@ pub fn visible_points(
     out.clear();
     let b = &ib.basis;
     let mut visited = 0;
-    let mut stack: Vec<u32> = Vec::with_capacity(64);
     for tree in &ib.trees {
-        if tree.node_count.is_empty() {
-            continue;
-        }
         let start = out.len();
-        stack.clear();
-        stack.push(0);
-        while let Some(node) = stack.pop() {
-            let i = node as usize;
-            visited += 1;
-            if !frustum.meets_box(Vec3::from(tree.node_min[i]), Vec3::from(tree.node_max[i])) {
-                continue;
-            }
-            let count = tree.node_count[i] as usize;
-            if count > 0 {
-                let first = tree.node_first[i] as usize;
-                for &j in &tree.items[first..first + count] {
-                    let ju = j as usize;
-                    if frustum.meets_sphere(Vec3::from(b.positions[ju]), radius.min(b.radii[ju])) {
-                        out.push(j);
-                    }
+        visited += tree.visit(
+            |lo, hi| frustum.meets_box(Vec3::from(lo), Vec3::from(hi)),
+            |j| {
+                let ju = j as usize;
+                if frustum.meets_sphere(Vec3::from(b.positions[ju]), radius.min(b.radii[ju])) {
+                    out.push(j);
                 }
-            } else {
-                // Children: the left one follows its parent, the right one is at node_first.
-                stack.push(tree.node_first[i]);
-                stack.push(node + 1);
-            }
-        }
+            },
+        );
         out[start..].sort_unstable();
     }
     visited
@@ -125,7 +107,7 @@ mod tests {
             48,
         )
         .unwrap();
-        let f = Frustum::from_view_proj(&(cam.projection_matrix(0.1, 50.0) * cam.view_matrix()));
+        let f = Frustum::from_view_proj(&cam.reversed_view_proj((0.1, 50.0)));
         let mut out = Vec::new();
         for radius in [0.25, f32::INFINITY] {
             visible_points(&ib, &f, radius, &mut out);

@@ -1,11 +1,11 @@
 //! Flattening on the GPU (section 4.1; the paper notes that the CPU stages "could potentially
 //! be implemented on the GPU"): the precomputed sparse operator of
-//! `mlt_format::flatten_op` uploaded once, applied per relit frame by a compute pass that
+//! `mlt_relight::flatten_op` uploaded once, applied per relit frame by a compute pass that
 //! writes the flat coefficients straight into the buffer the splatting pass reads. Each row is
 //! summed in its stored order, as on the CPU.
 
-use mlt_format::flatten_op::{FlattenOp, BLOCK_ROWS, QUANTUM};
 use mlt_format::links::LINK_DIM;
+use mlt_relight::flatten_op::{FlattenOp, BLOCK_ROWS, QUANTUM};
 use wgpu::util::DeviceExt;
 
 use super::context::{Gpu, GpuError};
@@ -114,19 +114,8 @@ impl GpuFlatten {
             output,
             &params,
         ];
-        let entries: Vec<wgpu::BindGroupEntry<'_>> = buffers
-            .iter()
-            .enumerate()
-            .map(|(k, b)| wgpu::BindGroupEntry {
-                binding: k as u32,
-                resource: b.as_entire_binding(),
-            })
-            .collect();
-        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("flatten"),
-            layout: &layout,
-            entries: &entries,
-        });
+        let resources = buffers.map(|b| b.as_entire_binding());
+        let bind_group = super::pipeline::bind_group(device, "flatten", &layout, &resources);
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(GpuError::Validation(e.to_string()));
         }

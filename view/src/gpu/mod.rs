@@ -3,18 +3,29 @@
 //!
 //! - [`context`]: the device (headless or for a window), with a clear error when there is none;
 //! - [`mesh`]: the scene's triangles as GPU vertex data, grouped by material;
-//! - [`cull`]: frustum culling of basis functions with the R-tree's nodes;
+//! - [`materials`]: the mesh's albedo colours and textures as bind groups;
+//! - [`scene_buffers`]: vertices, per-frame globals, basis points and their coefficients;
+//! - [`cull`]: frustum culling of basis functions through the R-tree's visitor;
 //! - [`flatten`]: the flattening operator as a compute pass;
 //! - [`uniforms`]: camera, light and shadow-face parameters in the shaders' layout;
-//! - [`renderer`]: the passes (G-buffer, shadow maps, splatting, resolve, display);
+//! - [`pipeline`]: the boilerplate the passes share (layouts, the pipeline helper);
+//! - [`targets`]: the image-sized render targets;
+//! - [`passes`]: one module per pass (G-buffer, shadow maps, splatting, resolve, display,
+//!   points);
+//! - [`renderer`]: the renderer of a scene, running the passes frame by frame;
 //! - [`readback`]: copying textures back to the CPU.
 
 pub mod context;
 pub mod cull;
 pub mod flatten;
+pub mod materials;
 pub mod mesh;
+pub mod passes;
+pub mod pipeline;
 pub mod readback;
 pub mod renderer;
+pub mod scene_buffers;
+pub mod targets;
 pub mod uniforms;
 
 pub use context::{Gpu, GpuError};

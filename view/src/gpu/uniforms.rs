@@ -2,9 +2,9 @@
 
 use bytemuck::{Pod, Zeroable};
 use glam::{Mat4, Vec3};
+use mlt_relight::light::{Cone, Light};
 
 use crate::camera::Camera;
-use crate::light::{Cone, Light};
 
 /// `Globals` of `common.wgsl` (std140-compatible: only vec4 and mat4 members).
 #[repr(C)]
@@ -128,17 +128,18 @@ fn corners(lo: Vec3, hi: Vec3) -> [Vec3; 8] {
 }
 
 impl Globals {
-    /// Parameters for one frame. `shadows` is `None` to render without shadows.
+    /// Parameters for one frame: `view_proj` is the camera's reversed-depth view-projection
+    /// ([`Camera::reversed_view_proj`]) with the near plane at `near`. `shadows` is `None` to
+    /// render without shadows.
     pub fn new(
         camera: &Camera,
-        planes: (f32, f32),
+        view_proj: &Mat4,
+        near: f32,
         light: &Light,
         shadows: Option<(&ShadowFaces, u32)>,
         mode: u32,
         debug_level: u32,
     ) -> Globals {
-        let (near, far) = planes;
-        let view_proj = camera.projection_matrix(near, far) * camera.view_matrix();
         let (_, up, back) = camera.frame();
         let (kind, axis, cos_a, cos_inner) = match light.cone {
             Cone::None => (0.0, Vec3::ZERO, -2.0, 0.0),

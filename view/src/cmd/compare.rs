@@ -1,43 +1,71 @@
-//! `compare REF_DIR TEST_DIR [--json]`: error of a rendering against the brute-force reference
-//! (see `mlt_view::compare` for the definitions): relative RMSE, mean relative error over lit
-//! pixels and ratio of means, for the indirect and final images, with the reference's noise.
-//! `compare --probes REF.csv TEST.csv` does the same for probe irradiances.
+//! `view compare REF_DIR TEST_DIR [--json]`: error of a rendering against the brute-force
+//! reference (see `mlt_view::compare` for the definitions): relative RMSE, mean relative error
+//! over lit pixels and ratio of means, for the indirect and final images, with the reference's
+//! noise. `view compare --probes REF.csv TEST.csv` does the same for probe irradiances.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
-use clap::Parser;
+use clap::Args;
 use mlt_view::compare::{compare_dirs, compare_probe_csv, format_metrics, Metrics};
 
 /// Compares images (or probes) against the brute-force reference.
-#[derive(Parser)]
-#[command(name = "compare", version)]
-struct Cli {
+#[derive(Args, Debug)]
+pub struct CompareArgs {
     /// Reference directory (reference_{indirect,final,noise}.exr, reference.json), or with
     /// --probes the reference's probe CSV.
-    reference: PathBuf,
+    pub reference: PathBuf,
     /// Directory with indirect.exr and final.exr (falls back to reference_*.exr), or with
-    /// --probes the CSV of `view --probe-out`.
-    test: PathBuf,
+    /// --probes the CSV of `view probe --probe-out`.
+    pub test: PathBuf,
     /// Compare probe CSVs instead of image directories.
     #[arg(long)]
-    probes: bool,
+    pub probes: bool,
     /// Print JSON instead of text.
     #[arg(long)]
-    json: bool,
+    pub json: bool,
     /// Also write a PNG for people: the test's indirect image, the reference's, and their
     /// absolute difference, side by side, all with the reference's tone mapping (Reinhard
     /// 2002, key measured on the reference indirect image).
     #[arg(long)]
-    side_by_side: Option<PathBuf>,
+    pub side_by_side: Option<PathBuf>,
+}
+
+pub fn run(cli: &CompareArgs) -> Result<()> {
+    let what = if cli.probes { "probes " } else { "" };
+    let context = || {
+        format!(
+            "comparing {what}{} against {}",
+            cli.test.display(),
+            cli.reference.display()
+        )
+    };
+    if cli.probes {
+        let c = compare_probe_csv(&cli.reference, &cli.test).with_context(context)?;
+        if cli.json {
+            println!("{}", serde_json::to_string_pretty(&c)?);
+        } else {
+            print_metrics(cli, "irradiance", &c.indirect, &c.final_image);
+        }
+        return Ok(());
+    }
+    let c = compare_dirs(&cli.reference, &cli.test).with_context(context)?;
+    if cli.json {
+        println!("{}", serde_json::to_string_pretty(&c)?);
+    } else {
+        print_metrics(cli, "radiance", &c.indirect, &c.final_image);
+        if let Some(n) = &c.reference_noise {
+            println!("reference noise (reference.json): {n}");
+        }
+    }
+    if let Some(out) = &cli.side_by_side {
+        side_by_side(&cli.reference, &cli.test, out)?;
+    }
+    Ok(())
 }
 
 /// `[test | reference | |test - reference|]`, tone-mapped alike.
-fn side_by_side(
-    reference: &std::path::Path,
-    test: &std::path::Path,
-    out: &std::path::Path,
-) -> Result<()> {
+fn side_by_side(reference: &Path, test: &Path, out: &Path) -> Result<()> {
     use mlt_view::images::{linear_to_srgb, luminance, RgbImage, ToneMap};
     let r = RgbImage::read_exr(&reference.join("reference_indirect.exr"))?;
     let t = RgbImage::read_exr(&test.join("indirect.exr"))
@@ -78,7 +106,7 @@ fn side_by_side(
 }
 
 /// The text report: what was compared, then the indirect and final metrics.
-fn print_metrics(cli: &Cli, quantity: &str, indirect: &Metrics, final_image: &Metrics) {
+fn print_metrics(cli: &CompareArgs, quantity: &str, indirect: &Metrics, final_image: &Metrics) {
     println!(
         "{} against the reference {} ({quantity}, luminance)",
         cli.test.display(),
@@ -86,42 +114,4 @@ fn print_metrics(cli: &Cli, quantity: &str, indirect: &Metrics, final_image: &Me
     );
     println!("{}", format_metrics("indirect", indirect));
     println!("{}", format_metrics("final", final_image));
-}
-
-fn main() -> Result<()> {
-    let cli = Cli::parse();
-    if cli.probes {
-        let c = compare_probe_csv(&cli.reference, &cli.test).with_context(|| {
-            format!(
-                "comparing probes {} against {}",
-                cli.test.display(),
-                cli.reference.display()
-            )
-        })?;
-        if cli.json {
-            println!("{}", serde_json::to_string_pretty(&c)?);
-        } else {
-            print_metrics(&cli, "irradiance", &c.indirect, &c.final_image);
-        }
-        return Ok(());
-    }
-    let c = compare_dirs(&cli.reference, &cli.test).with_context(|| {
-        format!(
-            "comparing {} against {}",
-            cli.test.display(),
-            cli.reference.display()
-        )
-    })?;
-    if cli.json {
-        println!("{}", serde_json::to_string_pretty(&c)?);
-    } else {
-        print_metrics(&cli, "radiance", &c.indirect, &c.final_image);
-        if let Some(n) = &c.reference_noise {
-            println!("reference noise (reference.json): {n}");
-        }
-    }
-    if let Some(out) = &cli.side_by_side {
-        side_by_side(&cli.reference, &cli.test, out)?;
-    }
-    Ok(())
 }

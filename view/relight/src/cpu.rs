@@ -1,5 +1,5 @@
 //! Per-frame relighting on the CPU (Lehtinen et al. 2008, section 3.3), behind the
-//! [`Relight`] interface so that a GPU compute version can replace it:
+//! [`Relight`] interface so that a GPU compute version can replace it, in four steps:
 //! 1. direct irradiance at the sender points from the light, visibility averaged over several
 //!    jittered shadow rays per point (as the tech report, against binary flicker): the rays
 //!    leave the sender point and end at points spread around the light, over a disk facing the
@@ -7,9 +7,8 @@
 //!    so that visibility is averaged over about the sender's footprint. (Jittering the start
 //!    points over the tangent plane instead leaves curved surfaces and shadows them.) Half of
 //!    the rays, spread over the disk, go first; where they all agree the point is taken as
-//!    wholly lit or shadowed, and the other half is cast only in the penumbra (on Sponza this
-//!    saves 45 % of the rays). Points whose sample the pull-push replaces by their children's
-//!    average cast no rays.
+//!    wholly lit or shadowed, and the other half is cast only in the penumbra. Points whose
+//!    sample the pull-push replaces by their children's average cast no rays.
 //! 2. pull-push projection onto the sender levels, `e = P-dagger E` (section 2.1), with the
 //!    weights precomputed ([`PullPushOp`]);
 //! 3. `i = S e`, receiver-major in full precision ([`ReceiverLinks`]), skipping senders whose
@@ -24,24 +23,17 @@ use std::time::Instant;
 
 use glam::Vec3;
 use mlt_format::flatten::flatten;
-use mlt_format::flatten_op::{FlattenOp, FlattenScratch};
-use mlt_format::links::{ArchivedLinks, ReceiverLinks, LINK_DIM};
-use mlt_format::pull_push::PullPushOp;
+use mlt_format::links::{ArchivedLinks, LINK_DIM};
 use mlt_format::IndexedBasis;
 use mlt_scenes::RayCaster;
 use rayon::prelude::*;
 use serde::Serialize;
 
+use crate::flatten_op::{FlattenOp, FlattenScratch};
 use crate::light::Light;
-
-/// Milliseconds per stage of one relit frame.
-#[derive(Clone, Copy, Debug, Default, Serialize)]
-pub struct StageTimes {
-    pub direct_ms: f64,
-    pub project_ms: f64,
-    pub transport_ms: f64,
-    pub flatten_ms: f64,
-}
+use crate::pull_push_op::PullPushOp;
+use crate::receiver_links::ReceiverLinks;
+use crate::relight::{Frame, Relight, StageTimes};
 
 /// What building the relighter's operators cost, once per loaded file.
 #[derive(Clone, Copy, Debug, Default, Serialize)]
@@ -60,48 +52,9 @@ pub struct LoadStats {
     pub links_bytes: usize,
     /// Sender points that cast shadow rays (the others are pulled from their children).
     pub direct_points: usize,
-    /// Whether the file stores each level's points in Morton order (bakes since 2026-11-21);
+    /// Whether the file stores each level's points in Morton order (as the bake writes them);
     /// flattening is slower otherwise.
     pub points_in_morton_order: bool,
-}
-
-/// The lighting of one frame.
-#[derive(Clone, Debug, Default)]
-pub struct Frame {
-    /// Direct irradiance samples at the sender points, RGB. At the points whose sample the
-    /// pull-push replaces (those with children, on all but the finest sender level) this is
-    /// that replacement, the weighted average of the children's values, not a ray-cast sample.
-    pub direct: Vec<f32>,
-    /// Sender coefficients `e` (RGB per sender point).
-    pub e: Vec<f32>,
-    /// Receiver coefficients `i` of indirect vector irradiance (9 per point).
-    pub i: Vec<f32>,
-    /// Flat coefficients (9 per point, all points of all levels), as
-    /// [`mlt_format::flatten::flatten`] of `i` computes them up to rounding; empty when
-    /// flattening is left to the GPU ([`CpuRelighter::flatten_on_cpu`]).
-    pub flat: Vec<f32>,
-    pub times: StageTimes,
-    /// Senders whose links were applied.
-    pub senders_used: usize,
-    /// Shadow rays cast for the direct light.
-    pub shadow_rays: u64,
-    /// True when the light had not moved and the previous frame was reused.
-    pub reused: bool,
-}
-
-/// Per-frame relighting.
-pub trait Relight {
-    /// The lighting for `light`; recomputed only when the light changed.
-    fn relight(&mut self, light: &Light) -> &Frame;
-
-    /// The precomputed flattening operator, for a renderer that flattens on the GPU.
-    fn flatten_operator(&self) -> Option<&FlattenOp> {
-        None
-    }
-
-    /// Whether step 4 (flattening) runs here; off when the renderer does it on the GPU from
-    /// `Frame::i`. Implementations without an operator ignore it.
-    fn set_flatten_on_cpu(&mut self, _on: bool) {}
 }
 
 /// The CPU implementation.

@@ -1,0 +1,10 @@
+//! Why a relighting operator cannot be built.
+
+/// Errors of this crate.
+#[derive(Debug, thiserror::Error)]
+pub enum RelightError {
+    /// The flattening operator does not fit its storage (32-bit offsets, 16-bit local
+    /// columns) or was given inconsistent inputs.
+    #[error("flattening operator: {0}")]
+    FlattenOperator(String),
+}

@@ -1,0 +1,291 @@
+//! The products `c = F alpha` of a [`FlattenOp`]: blocks of rows summed from a table of their
+//! local columns' coefficients, portable or compiled for AVX2 and FMA ([`Kernel`]), with one
+//! copy per common number of floats per point (1, 3, 9) and a general one.
+
+use rayon::prelude::*;
+
+use super::{FlattenOp, FlattenScratch, BLOCK_ROWS, QUANTUM};
+
+/// Blocks per task of a parallel product.
+pub(super) const TASK_BLOCKS: usize = 8;
+
+/// Partial sums per row in a product (see [`FlattenOp::blocks`]).
+const ACCUMULATORS: usize = 4;
+
+/// How rows are summed (see [`FlattenOp::apply_with`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kernel {
+    /// Separate multiplies and adds, any CPU.
+    Portable,
+    /// Fused multiply-adds compiled for AVX2 and FMA; only where the CPU has both.
+    #[cfg(target_arch = "x86_64")]
+    Avx2Fma,
+}
+
+impl Kernel {
+    /// The fastest kernel this CPU runs.
+    pub fn detect() -> Kernel {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
+            return Kernel::Avx2Fma;
+        }
+        Kernel::Portable
+    }
+
+    /// Whether this CPU runs `self`.
+    pub fn supported(self) -> bool {
+        match self {
+            Kernel::Portable => true,
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Avx2Fma => Kernel::detect() == Kernel::Avx2Fma,
+        }
+    }
+}
+
+/// `out` as rows of 9 floats, when `D` is 9.
+#[cfg(target_arch = "x86_64")]
+fn as_rows9<const D: usize>(out: &mut [[f32; D]]) -> Option<&mut [[f32; 9]]> {
+    if D != 9 {
+        return None;
+    }
+    let (rows, _) = out.as_flattened_mut().as_chunks_mut::<9>();
+    Some(rows)
+}
+
+impl FlattenOp {
+    /// `flat = F alpha` with `D` floats per point and `kernel`: tasks of [`TASK_BLOCKS`]
+    /// blocks in parallel, writing the rows in place when the storage order is the point
+    /// order, else into `scratch` and then to their points.
+    pub(super) fn apply_n<const D: usize>(
+        &self,
+        kernel: Kernel,
+        alpha: &[f32],
+        flat: &mut [f32],
+        scratch: &mut FlattenScratch,
+    ) {
+        let rows: &mut [f32] = if self.identity {
+            flat
+        } else {
+            scratch.rows.resize(self.points * D, 0.0);
+            &mut scratch.rows
+        };
+        rows.par_chunks_mut(TASK_BLOCKS * BLOCK_ROWS * D)
+            .enumerate()
+            .for_each_init(Vec::new, |table, (task, out)| {
+                let (out, _) = out.as_chunks_mut::<D>();
+                let first = task * TASK_BLOCKS;
+                match kernel {
+                    Kernel::Portable => self.blocks::<D, false>(alpha, first, out, table),
+                    #[cfg(target_arch = "x86_64")]
+                    Kernel::Avx2Fma => {
+                        if let Some(out9) = as_rows9(out) {
+                            // SAFETY: `apply_with` asserted that this CPU runs `kernel` (has
+                            // AVX2 and FMA), the only requirement for calling a function
+                            // compiled with them.
+                            unsafe { self.blocks_avx2_9(alpha, first, out9, table) }
+                        } else {
+                            // SAFETY: as above.
+                            unsafe { self.blocks_avx2::<D>(alpha, first, out, table) }
+                        }
+                    }
+                }
+            });
+        if !self.identity {
+            self.scatter(D, flat, scratch);
+        }
+    }
+
+    /// [`FlattenOp::blocks`] compiled with AVX2 and FMA.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn blocks_avx2<const D: usize>(
+        &self,
+        alpha: &[f32],
+        first: usize,
+        out: &mut [[f32; D]],
+        table: &mut Vec<f32>,
+    ) {
+        self.blocks::<D, true>(alpha, first, out, table);
+    }
+
+    /// [`FlattenOp::blocks`] for 9 floats per point (vector irradiance, the viewer's case)
+    /// with AVX2 and FMA: the first 8 floats of a row in one 256-bit register per partial sum.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn blocks_avx2_9(
+        &self,
+        alpha: &[f32],
+        first: usize,
+        out: &mut [[f32; 9]],
+        table: &mut Vec<f32>,
+    ) {
+        use std::arch::x86_64::{
+            __m256, _mm256_add_ps, _mm256_fmadd_ps, _mm256_loadu_ps, _mm256_mul_ps, _mm256_set1_ps,
+            _mm256_setzero_ps, _mm256_storeu_ps,
+        };
+        let scale = 1.0 / QUANTUM as f32;
+        for (q, rows) in out.chunks_mut(BLOCK_ROWS).enumerate() {
+            let b = first + q;
+            self.gather_table(alpha, 9, b, table);
+            let (table, _) = table.as_chunks::<9>();
+            for (r, o) in rows.iter_mut().enumerate() {
+                let mut lo: [__m256; ACCUMULATORS] = [_mm256_setzero_ps(); ACCUMULATORS];
+                let mut hi = [0.0f32; ACCUMULATORS];
+                let (quads, rest) = self.row(b * BLOCK_ROWS + r).as_chunks::<ACCUMULATORS>();
+                for quad in quads {
+                    for a in 0..ACCUMULATORS {
+                        let e = quad[a];
+                        let v = (e >> 16) as f32;
+                        // SAFETY: every local column of a block is below its number of
+                        // columns (`build` numbers them 0, 1, ... as it meets them), and the
+                        // table holds one row per column.
+                        let c = unsafe { table.get_unchecked((e & 0xffff) as usize) };
+                        // SAFETY: `c` is a `[f32; 9]`: its first 8 floats are readable.
+                        let c8 = unsafe { _mm256_loadu_ps(c.as_ptr()) };
+                        lo[a] = _mm256_fmadd_ps(_mm256_set1_ps(v), c8, lo[a]);
+                        hi[a] = v.mul_add(c[8], hi[a]);
+                    }
+                }
+                for (a, &e) in rest.iter().enumerate() {
+                    let v = (e >> 16) as f32;
+                    // SAFETY: as above.
+                    let c = unsafe { table.get_unchecked((e & 0xffff) as usize) };
+                    // SAFETY: as above.
+                    let c8 = unsafe { _mm256_loadu_ps(c.as_ptr()) };
+                    lo[a] = _mm256_fmadd_ps(_mm256_set1_ps(v), c8, lo[a]);
+                    hi[a] = v.mul_add(c[8], hi[a]);
+                }
+                let sum = _mm256_add_ps(_mm256_add_ps(lo[0], lo[1]), _mm256_add_ps(lo[2], lo[3]));
+                let sum = _mm256_mul_ps(sum, _mm256_set1_ps(scale));
+                // SAFETY: `o` is a `[f32; 9]`: its first 8 floats are writable.
+                unsafe { _mm256_storeu_ps(o.as_mut_ptr(), sum) };
+                o[8] = ((hi[0] + hi[1]) + (hi[2] + hi[3])) * scale;
+            }
+        }
+    }
+
+    /// Copies the coefficients of block `b`'s local columns, `dim` per column, into `table`:
+    /// the first step of a product for each block (public so that benchmarks can time it).
+    /// (A row sums `q alpha` and is scaled by `1 / QUANTUM` once at the end.) Panics unless
+    /// `b` is below the number of blocks and `alpha` holds `dim` floats per point.
+    #[inline(always)]
+    pub fn gather_table(&self, alpha: &[f32], dim: usize, b: usize, table: &mut Vec<f32>) {
+        let cols = self.block_cols(b);
+        table.resize(cols.len() * dim, 0.0);
+        for (t, &k) in table.chunks_exact_mut(dim.max(1)).zip(cols) {
+            let k = k as usize;
+            t.copy_from_slice(&alpha[k * dim..k * dim + dim]);
+        }
+    }
+
+    /// Rows of the blocks from `first` on into `out` (whole blocks but perhaps the last).
+    /// `FMA` sums with `mul_add`, which is a single instruction only where compiled for it.
+    #[inline(always)]
+    fn blocks<const D: usize, const FMA: bool>(
+        &self,
+        alpha: &[f32],
+        first: usize,
+        out: &mut [[f32; D]],
+        table: &mut Vec<f32>,
+    ) {
+        let scale = 1.0 / QUANTUM as f32;
+        for (q, rows) in out.chunks_mut(BLOCK_ROWS).enumerate() {
+            let b = first + q;
+            self.gather_table(alpha, D, b, table);
+            let (table, _) = table.as_chunks::<D>();
+            let add = |acc: &mut [f32; D], e: u32| {
+                let v = (e >> 16) as f32;
+                let c = &table[(e & 0xffff) as usize];
+                for d in 0..D {
+                    acc[d] = if FMA {
+                        v.mul_add(c[d], acc[d])
+                    } else {
+                        acc[d] + v * c[d]
+                    };
+                }
+            };
+            for (r, o) in rows.iter_mut().enumerate() {
+                // Four partial sums (entries 4i, 4i+1, ...), so that consecutive entries do
+                // not wait on each other's additions; combined in a fixed order.
+                let mut acc = [[0.0f32; D]; ACCUMULATORS];
+                let (quads, rest) = self.row(b * BLOCK_ROWS + r).as_chunks::<ACCUMULATORS>();
+                for quad in quads {
+                    for (a, &e) in acc.iter_mut().zip(quad) {
+                        add(a, e);
+                    }
+                }
+                for (a, &e) in acc.iter_mut().zip(rest) {
+                    add(a, e);
+                }
+                for d in 0..D {
+                    o[d] = ((acc[0][d] + acc[1][d]) + (acc[2][d] + acc[3][d])) * scale;
+                }
+            }
+        }
+    }
+
+    /// `flat = F alpha` with any number `dim` of floats per point (the portable kernel,
+    /// without partial sums), through `scratch`.
+    pub(super) fn apply_dyn(
+        &self,
+        alpha: &[f32],
+        dim: usize,
+        flat: &mut [f32],
+        scratch: &mut FlattenScratch,
+    ) {
+        let scale = 1.0 / QUANTUM as f32;
+        scratch.rows.resize(self.points * dim, 0.0);
+        scratch
+            .rows
+            .par_chunks_mut(BLOCK_ROWS * dim)
+            .enumerate()
+            .for_each(|(b, out)| {
+                let cols = self.block_cols(b);
+                for (r, o) in out.chunks_exact_mut(dim).enumerate() {
+                    o.fill(0.0);
+                    for &e in self.row(b * BLOCK_ROWS + r) {
+                        let v = (e >> 16) as f32 * scale;
+                        let k = cols[(e & 0xffff) as usize] as usize;
+                        let c = &alpha[k * dim..k * dim + dim];
+                        for d in 0..dim {
+                            o[d] += v * c[d];
+                        }
+                    }
+                }
+            });
+        self.scatter(dim, flat, scratch);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::tests::{coefficients, max_diff};
+    use super::*;
+    use mlt_format::test_support::plane_basis;
+
+    #[test]
+    fn kernels_agree() {
+        let ib = plane_basis(5, 3);
+        let op = FlattenOp::build(&ib, None).unwrap();
+        #[cfg_attr(not(target_arch = "x86_64"), allow(unused_mut))]
+        let mut kernels = vec![Kernel::Portable];
+        #[cfg(target_arch = "x86_64")]
+        kernels.extend([Kernel::Avx2Fma].into_iter().filter(|k| k.supported()));
+        for dim in [1, 3, 9, 5] {
+            let alpha = coefficients(&ib, dim);
+            let runs: Vec<Vec<f32>> = kernels
+                .iter()
+                .map(|&k| {
+                    let mut flat = vec![f32::NAN; alpha.len()];
+                    op.apply_with(k, &alpha, dim, &mut flat, &mut FlattenScratch::default());
+                    flat
+                })
+                .collect();
+            let scale = runs[0].iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            for (k, run) in kernels.iter().zip(&runs) {
+                assert!(max_diff(&runs[0], run) <= 1e-6 * scale, "dim {dim}, {k:?}");
+            }
+        }
+    }
+}

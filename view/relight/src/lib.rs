@@ -1,0 +1,31 @@
+//! Per-frame relighting of a baked meshless hierarchical light transport file (Lehtinen et al.
+//! 2008, section 3.3): from a light to the flat coefficients a renderer splats.
+//!
+//! - [`light`]: the point and spot light, and its direct irradiance;
+//! - [`relight`]: the [`Relight`] interface, the [`Frame`] it produces and its [`StageTimes`];
+//! - [`cpu`]: [`CpuRelighter`], the CPU implementation: direct light by shadow rays, then the
+//!   three operators below, built once per file;
+//! - [`pull_push_op`]: the pull-push projection `e = P-dagger E` (section 2.1) with precomputed
+//!   weights;
+//! - [`receiver_links`]: `i = S e` receiver-major in full precision (sections 3.1-3.3);
+//! - [`flatten_op`]: the sparse flattening operator (section 4.1), whose packed arrays a GPU
+//!   compute pass can also apply ([`flatten_op::FlattenOp::parts`]).
+//!
+//! Each operator gives the same bits for any rayon thread count. The file, the basis and the
+//! reference (per-query) versions of these operators are in `mlt-format`.
+
+pub mod cpu;
+pub mod error;
+pub mod flatten_op;
+pub mod light;
+pub mod pull_push_op;
+pub mod receiver_links;
+pub mod relight;
+
+pub use cpu::{CpuRelighter, LoadStats};
+pub use error::RelightError;
+pub use flatten_op::{FlattenOp, FlattenOptions, FlattenScratch, Kernel};
+pub use light::{Light, LightError};
+pub use pull_push_op::PullPushOp;
+pub use receiver_links::ReceiverLinks;
+pub use relight::{Frame, Relight, StageTimes};

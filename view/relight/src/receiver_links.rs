@@ -1,0 +1,235 @@
+//! The direct-to-indirect operator `S` (sections 3.1-3.3) rearranged for the run time:
+//! receiver-major, in full precision, decoded once from the file's sender-major half floats
+//! ([`ArchivedLinks`]), so that `i = S e` is computed per receiver in parallel.
+
+use half::f16;
+use mlt_format::links::{ArchivedLinks, LINK_DIM};
+
+/// `S` receiver-major in full precision, decoded once from the stored sender-major half
+/// floats (section 3.3's `i = S e`, rearranged for the run time): each linked receiver gathers
+/// its senders' light, so receivers are independent and computed in parallel with the same
+/// bits for any thread count, and no half float is decoded per frame.
+///
+/// [`apply`](Self::apply) gives the same bits as [`ArchivedLinks::apply`] into a zeroed `i`:
+/// each receiver sums the same products (`(e_s * scale_s) * value`) in ascending sender order.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ReceiverLinks {
+    receivers: u32,
+    /// Stored sender slots: global sender ids and scales.
+    sender_ids: Vec<u32>,
+    scales: Vec<f32>,
+    /// Receivers with at least one link, ascending.
+    receiver_ids: Vec<u32>,
+    /// `receiver_ids.len() + 1` offsets into `slots`/`values`.
+    offsets: Vec<u32>,
+    /// Sender slot of each link, ascending within a receiver.
+    slots: Vec<u32>,
+    /// The decoded (unscaled) link values.
+    values: Vec<[f32; LINK_DIM]>,
+}
+
+/// Receivers per parallel task of [`ReceiverLinks::apply`].
+const RECEIVER_CHUNK: usize = 1024;
+
+impl ReceiverLinks {
+    /// Transposes validated links (call [`ArchivedLinks::validate`] first).
+    pub fn build(links: &ArchivedLinks) -> ReceiverLinks {
+        let receivers = links.receivers.to_native();
+        let n = receivers as usize;
+        let mut count = vec![0u32; n + 1];
+        for r in links.receiver_ids.iter() {
+            count[r.to_native() as usize + 1] += 1;
+        }
+        let receiver_ids: Vec<u32> = (0..n)
+            .filter(|&r| count[r + 1] > 0)
+            .map(|r| r as u32)
+            .collect();
+        // Offsets per receiver (all of them) for the fill, then compacted.
+        for r in 0..n {
+            count[r + 1] += count[r];
+        }
+        let total = links.receiver_ids.len();
+        let mut cursor = count.clone();
+        let mut slots = vec![0u32; total];
+        let mut values = vec![[0.0f32; LINK_DIM]; total];
+        for slot in 0..links.sender_ids.len() {
+            let (a, b) = (
+                links.offsets[slot].to_native() as usize,
+                links.offsets[slot + 1].to_native() as usize,
+            );
+            for k in a..b {
+                let r = links.receiver_ids[k].to_native() as usize;
+                let at = cursor[r] as usize;
+                cursor[r] += 1;
+                slots[at] = slot as u32;
+                let v = &links.values[k * LINK_DIM..(k + 1) * LINK_DIM];
+                values[at] = std::array::from_fn(|d| f16::from_bits(v[d].to_native()).to_f32());
+            }
+        }
+        let mut offsets: Vec<u32> = receiver_ids.iter().map(|&r| count[r as usize]).collect();
+        offsets.push(total as u32);
+        ReceiverLinks {
+            receivers,
+            sender_ids: links.sender_ids.iter().map(|s| s.to_native()).collect(),
+            scales: links.scales.iter().map(|s| s.to_native()).collect(),
+            receiver_ids,
+            offsets,
+            slots,
+            values,
+        }
+    }
+
+    /// Heap bytes held.
+    pub fn bytes(&self) -> usize {
+        4 * (self.sender_ids.len()
+            + self.scales.len()
+            + self.receiver_ids.len()
+            + self.offsets.len()
+            + self.slots.len())
+            + 4 * LINK_DIM * self.values.len()
+    }
+
+    /// Receivers with at least one link, ascending (the only ones `S e` can light).
+    pub fn receiver_ids(&self) -> &[u32] {
+        &self.receiver_ids
+    }
+
+    /// `i = S e`: as [`ArchivedLinks::apply`] into a zeroed `i` (same skipping of senders whose
+    /// largest channel is at most `threshold`, same result bits), but `i` is overwritten,
+    /// receivers without links included. Returns the number of senders used.
+    ///
+    /// Panics unless `e.len() >= 3 * senders` and `i.len() == 9 * receivers`.
+    pub fn apply(&self, e: &[f32], threshold: f32, i: &mut [f32]) -> usize {
+        use rayon::prelude::*;
+        let n = self.receivers as usize;
+        assert_eq!(i.len(), n * LINK_DIM);
+        let mut used = 0;
+        // Each stored sender's scaled light, repeated per vector component, so that a link
+        // multiplies it element by element (the same products as `ArchivedLinks::apply`).
+        let w: Vec<[f32; LINK_DIM]> = self
+            .sender_ids
+            .iter()
+            .zip(&self.scales)
+            .map(|(&s, &scale)| {
+                let s = s as usize;
+                let es = [e[3 * s], e[3 * s + 1], e[3 * s + 2]];
+                if es.iter().all(|x| x.abs() <= threshold) {
+                    [0.0; LINK_DIM]
+                } else {
+                    used += 1;
+                    std::array::from_fn(|k| es[k / 3] * scale)
+                }
+            })
+            .collect();
+        // Chunks of receivers own disjoint, consecutive ranges of `i` (receivers ascend): from
+        // their first receiver to the next chunk's first, the first chunk from point 0.
+        let receivers = &self.receiver_ids;
+        let chunks = receivers.len().div_ceil(RECEIVER_CHUNK);
+        let mut parts = Vec::with_capacity(chunks.max(1));
+        let mut rest = i;
+        let mut at = 0usize;
+        for c in 0..chunks {
+            let end = if c + 1 < chunks {
+                receivers[(c + 1) * RECEIVER_CHUNK] as usize
+            } else {
+                n
+            };
+            let (head, tail) = std::mem::take(&mut rest).split_at_mut((end - at) * LINK_DIM);
+            parts.push((c, at, head));
+            rest = tail;
+            at = end;
+        }
+        rest.fill(0.0);
+        #[cfg(target_arch = "x86_64")]
+        let avx2 = std::arch::is_x86_feature_detected!("avx2");
+        parts.into_par_iter().for_each(|(c, first, out)| {
+            #[cfg(target_arch = "x86_64")]
+            if avx2 {
+                // SAFETY: this CPU has AVX2 (checked above), the only requirement for calling
+                // a function compiled with it.
+                unsafe { self.chunk_avx2(&w, c, first, out) };
+                return;
+            }
+            self.chunk(&w, c, first, out);
+        });
+        used
+    }
+
+    /// [`ReceiverLinks::chunk`] compiled with AVX2 (8 of a link's 9 products in one
+    /// instruction; no fused multiply-adds, so the same bits).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn chunk_avx2(&self, w: &[[f32; LINK_DIM]], c: usize, first: usize, out: &mut [f32]) {
+        self.chunk(w, c, first, out);
+    }
+
+    /// The receivers of chunk `c` into `out`, which starts at point `first`.
+    #[inline(always)]
+    fn chunk(&self, w: &[[f32; LINK_DIM]], c: usize, first: usize, out: &mut [f32]) {
+        let receivers = &self.receiver_ids;
+        out.fill(0.0);
+        let qs = c * RECEIVER_CHUNK..((c + 1) * RECEIVER_CHUNK).min(receivers.len());
+        for q in qs {
+            let r = receivers[q] as usize - first;
+            let (a, b) = (self.offsets[q] as usize, self.offsets[q + 1] as usize);
+            let mut acc = [0.0f32; LINK_DIM];
+            for (&slot, v) in self.slots[a..b].iter().zip(&self.values[a..b]) {
+                let ws = &w[slot as usize];
+                for d in 0..LINK_DIM {
+                    acc[d] += ws[d] * v[d];
+                }
+            }
+            out[r * LINK_DIM..(r + 1) * LINK_DIM].copy_from_slice(&acc);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mlt_format::links::{Links, SenderLinks};
+    use rkyv::rancor;
+
+    #[test]
+    fn receiver_major_gives_the_same_bits() {
+        // Several senders per receiver, mixed signs, one skipped sender.
+        let cols: Vec<Vec<(u32, [f32; 9])>> = (0..6u32)
+            .map(|s| {
+                (0..12u32)
+                    .filter(|r| (r + s) % 3 != 0)
+                    .map(|r| {
+                        let v = std::array::from_fn(|d| {
+                            ((s * 31 + r * 7 + d as u32) as f32 * 0.37).sin() * (1.0 + s as f32)
+                        });
+                        (r, v)
+                    })
+                    .collect()
+            })
+            .collect();
+        let (l, _) = Links::pack(
+            14,
+            6,
+            cols.iter().enumerate().map(|(s, c)| SenderLinks {
+                sender: s as u32,
+                links: c,
+            }),
+        );
+        let bytes = rkyv::to_bytes::<rancor::Error>(&l).unwrap();
+        let a = rkyv::access::<ArchivedLinks, rancor::Error>(&bytes).unwrap();
+        a.validate().unwrap();
+        let rl = ReceiverLinks::build(a);
+        assert_eq!(rl.receiver_ids(), (0..12).collect::<Vec<u32>>().as_slice());
+        let e: Vec<f32> = (0..18).map(|k| 0.3 + (k as f32 * 1.3).cos()).collect();
+        let mut e_dark = e.clone();
+        e_dark[6..9].copy_from_slice(&[1e-3, -1e-3, 0.0]);
+        for (e, threshold, senders) in [(&e, 0.0, 6), (&e_dark, 0.01, 5)] {
+            let mut want = vec![0.0f32; 14 * 9];
+            assert_eq!(a.apply(e, threshold, &mut want), senders);
+            let mut got = vec![f32::NAN; 14 * 9];
+            assert_eq!(rl.apply(e, threshold, &mut got), senders);
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&got), bits(&want));
+            assert!(got[12 * 9..].iter().all(|&x| x == 0.0));
+        }
+    }
+}

@@ -1,0 +1,57 @@
+//! The interface of per-frame relighting (Lehtinen et al. 2008, section 3.3): a [`Relight`]
+//! turns a light into a [`Frame`] (direct light, sender coefficients `e`, receiver
+//! coefficients `i = S e` and, unless a renderer flattens on the GPU, the flat coefficients),
+//! timed per stage ([`StageTimes`]). [`crate::CpuRelighter`] implements it on the CPU.
+
+use serde::Serialize;
+
+use crate::flatten_op::FlattenOp;
+use crate::light::Light;
+
+/// Milliseconds per stage of one relit frame.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct StageTimes {
+    pub direct_ms: f64,
+    pub project_ms: f64,
+    pub transport_ms: f64,
+    pub flatten_ms: f64,
+}
+
+/// The lighting of one frame.
+#[derive(Clone, Debug, Default)]
+pub struct Frame {
+    /// Direct irradiance samples at the sender points, RGB. At the points whose sample the
+    /// pull-push replaces (those with children, on all but the finest sender level) this is
+    /// that replacement, the weighted average of the children's values, not a ray-cast sample.
+    pub direct: Vec<f32>,
+    /// Sender coefficients `e` (RGB per sender point).
+    pub e: Vec<f32>,
+    /// Receiver coefficients `i` of indirect vector irradiance (9 per point).
+    pub i: Vec<f32>,
+    /// Flat coefficients (9 per point, all points of all levels), as
+    /// [`mlt_format::flatten::flatten`] of `i` computes them up to rounding; empty when
+    /// flattening is left to the GPU ([`crate::CpuRelighter::flatten_on_cpu`]).
+    pub flat: Vec<f32>,
+    pub times: StageTimes,
+    /// Senders whose links were applied.
+    pub senders_used: usize,
+    /// Shadow rays cast for the direct light.
+    pub shadow_rays: u64,
+    /// True when the light had not moved and the previous frame was reused.
+    pub reused: bool,
+}
+
+/// Per-frame relighting.
+pub trait Relight {
+    /// The lighting for `light`; recomputed only when the light changed.
+    fn relight(&mut self, light: &Light) -> &Frame;
+
+    /// The precomputed flattening operator, for a renderer that flattens on the GPU.
+    fn flatten_operator(&self) -> Option<&FlattenOp> {
+        None
+    }
+
+    /// Whether step 4 (flattening) runs here; off when the renderer does it on the GPU from
+    /// `Frame::i`. Implementations without an operator ignore it.
+    fn set_flatten_on_cpu(&mut self, _on: bool) {}
+}

@@ -1,0 +1,122 @@
+//! Options that several subcommands share: what to look at (scene, camera, light) and how to
+//! relight and render it.
+
+use std::path::PathBuf;
+
+use clap::Args;
+use glam::Vec3;
+use mlt_view::camera::parse_vec3;
+use mlt_view::gpu::Gpu;
+
+/// A baked file to view, with the setting to view it in and how to relight it.
+#[derive(Args, Clone, Debug)]
+pub struct BakedArgs {
+    /// A file written by `bake`.
+    pub file: PathBuf,
+    #[command(flatten)]
+    pub scene: SceneArgs,
+    #[command(flatten)]
+    pub relight: RelightArgs,
+}
+
+/// The scene, camera and light, each defaulting to the file's (or the scene's).
+#[derive(Args, Clone, Debug, Default)]
+pub struct SceneArgs {
+    /// The scene to ray-cast for visibility and to rasterise (default: the source recorded
+    /// in the file).
+    #[arg(long)]
+    pub scene: Option<String>,
+    /// Camera position (default: the file's camera).
+    #[arg(long, value_parser = parse_vec3)]
+    pub camera_pos: Option<Vec3>,
+    /// Camera target.
+    #[arg(long, value_parser = parse_vec3)]
+    pub camera_target: Option<Vec3>,
+    /// Camera up vector.
+    #[arg(long, value_parser = parse_vec3)]
+    pub camera_up: Option<Vec3>,
+    /// Vertical field of view, degrees.
+    #[arg(long)]
+    pub fovy: Option<f32>,
+    /// Image width in pixels (default: the camera's); the field of view is kept.
+    #[arg(long)]
+    pub width: Option<u32>,
+    /// Image height in pixels (default: the camera's).
+    #[arg(long)]
+    pub height: Option<u32>,
+    /// Light position (default: the file's light).
+    #[arg(long, value_parser = parse_vec3)]
+    pub light_pos: Option<Vec3>,
+    /// Light RGB intensity in W/sr.
+    #[arg(long, value_parser = parse_vec3)]
+    pub light_intensity: Option<Vec3>,
+    /// Spot direction (with --cone-deg): makes the light a spot.
+    #[arg(long, value_parser = parse_vec3, requires = "cone_deg")]
+    pub light_dir: Option<Vec3>,
+    /// Spot full cone angle, degrees.
+    #[arg(long, requires = "light_dir")]
+    pub cone_deg: Option<f32>,
+    /// Smooth (glTF) spot falloff instead of a hard cone.
+    #[arg(long)]
+    pub smooth: bool,
+}
+
+/// How the CPU relights a frame (section 3.3).
+#[derive(Args, Clone, Debug)]
+pub struct RelightArgs {
+    /// Shadow rays per sender point for the direct light at the senders.
+    #[arg(long, default_value_t = 8)]
+    pub shadow_rays: u32,
+    /// Cast every shadow ray at every point; by default half are cast first and the rest only
+    /// where those disagree (the penumbra).
+    #[arg(long)]
+    pub all_shadow_rays: bool,
+}
+
+/// How the GPU renders.
+#[derive(Args, Clone, Debug)]
+pub struct GpuArgs {
+    /// Where the fourth relighting stage, flattening, runs: `gpu` (a compute pass), `cpu`, or
+    /// `auto`: the GPU unless the adapter is a software rasteriser (on llvmpipe the compute
+    /// pass costs more of the same CPU than the CPU path).
+    #[arg(long, value_enum, default_value_t = FlattenOn::Auto)]
+    pub flatten: FlattenOn,
+    /// Shadow-map resolution of the rendered direct light.
+    #[arg(long, default_value_t = 1024)]
+    pub shadow_res: u32,
+}
+
+/// Where flattening runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum FlattenOn {
+    Auto,
+    Cpu,
+    Gpu,
+}
+
+impl FlattenOn {
+    /// `Some(true)` (GPU), `Some(false)` (CPU), or `None`: decided by the adapter.
+    pub fn choice(self) -> Option<bool> {
+        match self {
+            FlattenOn::Gpu => Some(true),
+            FlattenOn::Cpu => Some(false),
+            FlattenOn::Auto => None,
+        }
+    }
+
+    /// Whether flattening runs on `gpu`.
+    pub fn on_gpu(self, gpu: &Gpu) -> bool {
+        self.choice().unwrap_or(!gpu.is_software())
+    }
+}
+
+/// Probe points in and irradiance out.
+#[derive(Args, Clone, Debug)]
+pub struct ProbeArgs {
+    /// Probe points, rows x,y,z,nx,ny,nz.
+    #[arg(long)]
+    pub probe: PathBuf,
+    /// Where to write the probes' irradiance.
+    #[arg(long)]
+    pub probe_out: PathBuf,
+}

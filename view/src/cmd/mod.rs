@@ -1,0 +1,11 @@
+//! The subcommands of `view`, one module each, with the options they share ([`args`]) and the
+//! one loader of files, scenes and lights ([`load`]).
+
+pub mod args;
+pub mod compare;
+pub mod load;
+pub mod open;
+pub mod probe;
+pub mod reference;
+pub mod render;
+pub mod timings;

@@ -1,0 +1,43 @@
+//! `view open FILE` (or `view FILE`): the interactive window.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::Args;
+
+use crate::cmd::args::{BakedArgs, GpuArgs};
+use crate::cmd::load::with_viewing;
+
+/// Opens a window with a free camera and a movable light.
+#[derive(Args, Debug)]
+pub struct OpenArgs {
+    #[command(flatten)]
+    pub baked: BakedArgs,
+    #[command(flatten)]
+    pub gpu: GpuArgs,
+    /// For scripts and tests: after N frames save a screenshot of every view
+    /// (window-MODE.png in --screenshot-dir) and close.
+    #[arg(long)]
+    pub exit_after_frames: Option<u32>,
+    /// Where the window saves screenshots (P key).
+    #[arg(long, default_value = ".")]
+    pub screenshot_dir: PathBuf,
+}
+
+pub fn run(args: &OpenArgs) -> Result<()> {
+    with_viewing(&args.baked, |mut v| {
+        mlt_view::window::run(mlt_view::window::WindowSetup {
+            title: format!("view {}", v.path.display()),
+            scene: v.scene,
+            ib: v.ib,
+            bounds: v.bounds(),
+            relighter: &mut v.relighter,
+            camera: v.camera,
+            light: v.light,
+            shadow_res: args.gpu.shadow_res,
+            gpu_flatten: args.gpu.flatten.choice(),
+            exit_after_frames: args.exit_after_frames,
+            screenshot_dir: args.screenshot_dir.clone(),
+        })
+    })
+}

@@ -1,0 +1,78 @@
+//! `view timings FILE --frames N`: CPU relighting only (no GPU), N frames with the light
+//! moving on a circle, per-stage medians as JSON.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use clap::Args;
+use mlt_view::headless::{light_on_path, median};
+use mlt_view::Relight;
+
+use crate::cmd::args::BakedArgs;
+use crate::cmd::load::{with_viewing, Viewing};
+
+/// Times the CPU relighting stages.
+#[derive(Args, Debug)]
+pub struct TimingsArgs {
+    #[command(flatten)]
+    pub baked: BakedArgs,
+    /// Frames to relight.
+    #[arg(long, default_value_t = 1)]
+    pub frames: u32,
+    /// Write the timings (JSON) here instead of stdout.
+    #[arg(long)]
+    pub timings_out: Option<PathBuf>,
+}
+
+pub fn run(args: &TimingsArgs) -> Result<()> {
+    with_viewing(&args.baked, |mut v| {
+        let json = relight_frames(args, &mut v);
+        match &args.timings_out {
+            Some(out) => {
+                mlt_format::file::write_atomic(out, serde_json::to_string_pretty(&json)?.as_bytes())
+                    .with_context(|| format!("writing {}", out.display()))
+            }
+            None => {
+                println!("{}", serde_json::to_string_pretty(&json)?);
+                Ok(())
+            }
+        }
+    })
+}
+
+/// Relights the frames and returns the medians as JSON (also summed up on stderr).
+fn relight_frames(args: &TimingsArgs, v: &mut Viewing<'_>) -> serde_json::Value {
+    let n = args.frames;
+    let path_radius = v.path_radius();
+    let mut per_stage: [Vec<f64>; 4] = Default::default();
+    let mut senders = Vec::new();
+    let mut rays = Vec::new();
+    for f in 0..n.max(1) {
+        let l = light_on_path(&v.light, path_radius, f, n.max(1));
+        let frame = v.relighter.relight(&l);
+        let t = frame.times;
+        per_stage[0].push(t.direct_ms);
+        per_stage[1].push(t.project_ms);
+        per_stage[2].push(t.transport_ms);
+        per_stage[3].push(t.flatten_ms);
+        senders.push(frame.senders_used as f64);
+        rays.push(frame.shadow_rays as f64);
+    }
+    let [d, p, s, fl] = per_stage.map(median);
+    eprintln!(
+        "median per frame over {n} frames with a moving light: direct {d:.1} ms, pull-push {p:.1} ms, S e {s:.1} ms, flatten {fl:.1} ms"
+    );
+    serde_json::json!({
+        "file": v.path.display().to_string(),
+        "frames": n,
+        "moving_light": true,
+        "shadow_rays": args.baked.relight.shadow_rays,
+        "adaptive_shadow_rays": !args.baked.relight.all_shadow_rays,
+        "threads": rayon::current_num_threads(),
+        "median_ms": {"direct": d, "project": p, "transport": s, "flatten": fl, "total": d + p + s + fl},
+        "median_senders_used": median(senders),
+        "median_shadow_rays_cast": median(rays),
+        "load": v.relighter.load_stats(),
+        "gpu": "not used: CPU relighting only (`view render FILE --out DIR` renders)",
+    })
+}

@@ -1,0 +1,66 @@
+//! The splatting pass: every flat basis function that survives frustum culling (all points
+//! with their own radii and their level's priority factor: `mlt_format::flatten`) is drawn as
+//! a footprint bounding its support sphere; covered pixels accumulate, with additive blending,
+//! `f_j w_j` (Eq. 8), `f_j w_j c_j` and the unscaled `w_j` (which decides whether a pixel has
+//! support).
+
+use wgpu::ShaderStages as Stages;
+
+use crate::gpu::pipeline::{
+    additive, begin, color_target, module, pipeline, PipelineSpec, Slot, TargetBinding, VS_FS,
+};
+use crate::gpu::scene_buffers::SceneBuffers;
+use crate::gpu::targets::{Target, Targets};
+
+const SPLAT: &str = include_str!("../shaders/splat.wgsl");
+
+pub struct SplatPass {
+    pipeline: wgpu::RenderPipeline,
+    binding: TargetBinding,
+}
+
+impl SplatPass {
+    /// Sums accumulated in `acc_format`.
+    pub fn new(device: &wgpu::Device, acc_format: wgpu::TextureFormat) -> SplatPass {
+        let slots = [
+            Slot::Uniform(VS_FS),
+            Slot::Storage(VS_FS),
+            Slot::Storage(Stages::FRAGMENT),
+            Slot::Storage(Stages::VERTEX),
+            Slot::Textures(2),
+        ];
+        let binding = TargetBinding::new(device, "splat", &slots);
+        let module = module(device, "splat", SPLAT);
+        let targets = [0; 3].map(|_| color_target(acc_format, Some(additive())));
+        let strip = wgpu::PrimitiveTopology::TriangleStrip;
+        let spec = PipelineSpec::procedural("splat", binding.layout(), &module, strip, &targets);
+        SplatPass {
+            pipeline: pipeline(device, spec),
+            binding,
+        }
+    }
+
+    /// Binds the basis and the G-buffer of `t`.
+    pub fn attach(&mut self, device: &wgpu::Device, t: &Targets, scene: &SceneBuffers) {
+        let buffers = [
+            &scene.globals,
+            &scene.points,
+            &scene.coefficients,
+            &scene.visible,
+        ];
+        let mut resources: Vec<_> = buffers.iter().map(|b| b.as_entire_binding()).collect();
+        resources.extend([&t.position, &t.normal].map(Target::binding));
+        self.binding.bind(device, &resources);
+    }
+
+    /// Clears the sums of `t` and splats the first `visible` points of the visible list.
+    pub fn encode(&self, enc: &mut wgpu::CommandEncoder, t: &Targets, visible: usize) {
+        let colors = [&t.acc[0], &t.acc[1], &t.acc[2]].map(Target::cleared);
+        let mut pass = begin(enc, "splat", &colors, None);
+        if let (Some(bg), true) = (self.binding.group(), visible > 0) {
+            pass.set_pipeline(&self.pipeline);
+            pass.set_bind_group(0, bg, &[]);
+            pass.draw(0..4, 0..visible as u32);
+        }
+    }
+}
