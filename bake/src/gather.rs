@@ -141,8 +141,8 @@ pub fn gather(
 }
 
 /// Van der Corput radical inverse in base 2, in `[0, 1)`: the 24 leading bits of the
-/// reversed index, exact in f32 (rounding all 32 bits to f32 gave 1.0 for the largest
-/// indices).
+/// reversed index, exact in f32 (rounding all 32 bits to f32 would give 1.0 for the
+/// largest indices).
 #[inline]
 pub fn radical_inverse(k: u32) -> f32 {
     (k.reverse_bits() >> 8) as f32 * (1.0 / 16_777_216.0)

@@ -10,7 +10,7 @@ use mlt_format::meta::{
 use mlt_format::shard::ShardSection;
 use mlt_format::shepard::MIN_WEIGHT_SUM;
 use mlt_format::{BakeContents, IndexedBasis, Transport};
-use mlt_scenes::{LightKind, RayCaster, Scene, SpotFalloff};
+use mlt_scenes::{LightKind, RayCaster, Scene};
 
 use crate::candidates::CandidatePool;
 use crate::error::BakeError;
@@ -472,23 +472,7 @@ fn scene_info(scene: &Scene, caster: &dyn RayCaster) -> SceneInfo {
 }
 
 fn light_info(scene: &Scene) -> LightInfo {
-    let l = &scene.light;
-    let spot = l.kind == LightKind::Spot;
-    LightInfo {
-        kind: if spot { "spot" } else { "point" }.into(),
-        position: l.position,
-        intensity: l.intensity,
-        direction: match (spot, l.direction) {
-            (true, Some(d)) => Vec3::from(d).normalize_or_zero().to_array(),
-            _ => [0.0; 3],
-        },
-        cone_deg: if spot { l.cone_deg.unwrap_or(0.0) } else { 0.0 },
-        falloff: match l.falloff {
-            SpotFalloff::Hard => "hard",
-            SpotFalloff::Smooth => "smooth",
-        }
-        .into(),
-    }
+    LightInfo::from(&scene.light)
 }
 
 /// Rays cast from the light to see whether it lights anything.

@@ -16,10 +16,10 @@
 //! (Eq. 17), but the coarsest receivers have no higher level: there a dropped link is light
 //! lost. With our Eq. 16 (which includes the 1/pi of Lambertian reflection) a coarsest link is
 //! about `rho / (number of coarse senders a receiver sees)`, well under the paper's
-//! epsilon = 0.025 in a closed room of 339 coarse points, so the literal rule kept about 2 % of
-//! those links and lost over 90 % of the indirect light of a closed box (next to the
-//! path-traced reference). The level-0 block costs at most `N_0^2` links (115k for 339 points,
-//! about 2 MB). Such forced links do not queue the receiver's children: refinement follows the
+//! epsilon = 0.025 in a closed room of 339 coarse points, so the literal rule would drop almost
+//! all of those links and with them most of the indirect light of a closed room. The level-0
+//! block costs at most `N_0^2` links (115k for 339 points, about 2 MB). Such forced links do
+//! not queue the receiver's children: refinement follows the
 //! paper's test alone. A finer receiver where no coarser level has support is such a base too:
 //! its links are full values (Eq. 17 subtracts nothing), so it gets the same rule, and it is
 //! queued even though no coarser receiver has it as a child.

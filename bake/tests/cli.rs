@@ -1,17 +1,15 @@
 //! The `bake` command line: exit codes, messages, files.
 
-use std::path::PathBuf;
 use std::process::Command;
+
+use mlt_test_support::TempDir;
 
 fn bake() -> Command {
     Command::new(env!("CARGO_BIN_EXE_bake"))
 }
 
-fn temp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("mlt-cli-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+fn temp(name: &str) -> TempDir {
+    TempDir::new(&format!("cli-{name}"))
 }
 
 #[test]
@@ -130,7 +128,6 @@ fn bakes_a_builtin_writes_stats_and_reports_info() {
         .unwrap();
     assert!(!r.status.success());
     assert!(String::from_utf8_lossy(&r.stderr).contains("nowhere"));
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]
@@ -163,7 +160,6 @@ fn a_failed_bake_names_the_problem_and_leaves_the_old_output_alone() {
         .unwrap();
     assert!(!r.status.success());
     assert!(String::from_utf8_lossy(&r.stderr).contains("levels"));
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]
@@ -193,7 +189,6 @@ fn info_on_a_damaged_file_fails_with_its_name() {
         err.contains("trunc.mlt") && err.contains("truncated"),
         "{err}"
     );
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]
@@ -258,5 +253,4 @@ fn non_finite_numbers_and_bad_bounce_counts_on_the_command_line_are_named() {
     assert_eq!(v["transport"]["stats"]["bounces"], 9);
     assert_eq!(v["report"]["error"]["series_converged"], false);
     assert!(String::from_utf8_lossy(&r.stderr).contains("cap of 9 bounces"));
-    let _ = std::fs::remove_dir_all(&d);
 }

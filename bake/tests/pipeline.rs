@@ -4,15 +4,14 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use mlt_test_support::TempDir;
+
 fn bake() -> Command {
     Command::new(env!("CARGO_BIN_EXE_bake"))
 }
 
-fn temp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("mlt-pipe-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+fn temp(name: &str) -> TempDir {
+    TempDir::new(&format!("pipe-{name}"))
 }
 
 fn run(cmd: &mut Command) -> std::process::Output {
@@ -172,7 +171,6 @@ gather_rays = 64
         (status("box"), status("cornell")),
         ("baked".into(), "skipped".into())
     );
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 fn bytes_of(d: &Path, scene: &str, threads: &str, name: &str) -> Vec<u8> {
@@ -194,7 +192,6 @@ fn outputs_are_byte_identical_across_runs_and_thread_counts() {
         let c = bytes_of(&d, scene, "2", "c.mlt");
         assert!(a == b && b == c, "{scene}: outputs differ");
     }
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 /// Bakes the small Cornell box with `extra` arguments as `n` shards (`{tag}s{i}of{n}.mlt` in
@@ -268,7 +265,6 @@ fn merged_shards_with_auto_bounces_equal_the_single_bake() {
         "{}",
         String::from_utf8_lossy(&r.stderr)
     );
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]
@@ -313,7 +309,6 @@ fn merged_shards_equal_the_single_bake_for_one_two_and_three_shards() {
         .output()
         .unwrap();
     assert!(!r.status.success());
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]
@@ -340,5 +335,4 @@ fn an_interrupt_leaves_no_partial_or_temporary_file() {
         .filter(|e| e.file_name() != "cornell.mlt")
         .collect();
     assert!(leftovers.is_empty(), "{leftovers:?}");
-    let _ = std::fs::remove_dir_all(&d);
 }

@@ -4,7 +4,7 @@
 //! offset  size  field
 //!  0       8    magic  "\x89MLTBK\r\n"   (a PNG-style signature: catches text-mode mangling)
 //!  8       2    format major version (readers reject other majors)
-//! 10       2    format minor version (new sections and fields; readers accept any minor)
+//! 10       2    format minor version (see the version rule below)
 //! 12       4    flags (reserved, 0)
 //! 16       4    header length in bytes (fixed part + section table, multiple of 16)
 //! 20       4    section count
@@ -12,15 +12,30 @@
 //! 32       8    xxh3-64 of the payload (bytes header_len..file_len)
 //! 40       8    xxh3-64 of the header with this field zeroed
 //! 48       8    input key: xxh3-64 of everything the bake's result depends on (scene bytes,
-//!               parameters, tool version), 0 if unknown (since 1.2)
+//!               parameters, tool version), 0 if unknown (1.2 and later)
 //! 56       8    reserved, 0
 //! 64  32 * n    section table: tag [u8; 4], flags u32 (bit 0: zstd), offset u64,
 //!               stored length u64, raw (decompressed) length u64
 //! ```
 //! All integers are little-endian. Sections start at 16-byte-aligned offsets and hold rkyv
-//! archives (zstd-compressed when flagged). Readers ignore tags they do not know, so later
-//! versions can add sections (the transport links, a flattening operator) without breaking
-//! readers of this version's.
+//! archives (zstd-compressed when flagged). Readers ignore tags they do not know.
+//!
+//! # The version rule
+//! A reader reads the files of its own major version only. Within a major version:
+//! - a minor version may add sections under new tags, which older readers skip;
+//! - the sections of a baked file (`META`, `BASE`, `RTRE`, `TRNS`, `SLNK`, `TRPT`) keep their
+//!   layout for the whole major version, so every reader of the major version reads them from
+//!   a file of any minor version;
+//! - the layout of `TSHD`, which only the intermediate shard files of `bake --shard` carry
+//!   (they are merged by the build that computed them), may change with a minor version. A
+//!   reader reads a `TSHD` section only from the minor versions with the layout it knows
+//!   ([`SHARD_LAYOUT_MINOR`] to its own [`VERSION_MINOR`]) and refuses it from any other,
+//!   naming both versions.
+//!
+//! What each minor version added: 1.1 the transport operator (`TRNS`, `SLNK`); 1.2 the input
+//! key in the header; 1.3 the optional `TRPT` section (error estimate, bounce choice, what was
+//! left out); 1.4 the bounce policy in `TSHD` (its current layout). From 1.4 the bake stores
+//! each level's points in Morton order; readers do not rely on it.
 
 use std::ops::Deref;
 use std::path::Path;
@@ -32,11 +47,10 @@ use crate::error::FormatError;
 
 pub const MAGIC: [u8; 8] = *b"\x89MLTBK\r\n";
 pub const VERSION_MAJOR: u16 = 1;
-/// 1.3 added the optional `TRPT` section (error estimate, bounce choice, what was left out);
-/// 1.4 the bounce policy to shard files' `TSHD` section (older shards are refused, other
-/// sections read as before). Since 1.4 the bake also stores each level's points in Morton
-/// order; readers do not rely on it.
+/// The minor version this build writes (the module docs list what each one added).
 pub const VERSION_MINOR: u16 = 4;
+/// The first minor version with the `TSHD` layout this build reads.
+pub const SHARD_LAYOUT_MINOR: u16 = 4;
 pub const FIXED_HEADER: usize = 64;
 pub const ENTRY_SIZE: usize = 32;
 pub const ALIGN: usize = 16;

@@ -3,6 +3,7 @@
 
 use std::fs;
 use std::io::Write;
+use std::ops::RangeInclusive;
 use std::path::{Path, PathBuf};
 
 use memmap2::Mmap;
@@ -11,7 +12,9 @@ use rkyv::util::AlignedVec;
 use serde::Serialize;
 
 use crate::basis::Basis;
-use crate::container::{self, Header, SectionBytes, SectionIn, ALIGN};
+use crate::container::{
+    self, Header, SectionBytes, SectionIn, ALIGN, SHARD_LAYOUT_MINOR, VERSION_MAJOR, VERSION_MINOR,
+};
 use crate::error::FormatError;
 use crate::links::{ArchivedLinks, Links};
 use crate::meta::{Meta, TransportMeta, TransportReport};
@@ -31,6 +34,18 @@ pub const TAG_LINKS: [u8; 4] = *b"SLNK";
 pub const TAG_REPORT: [u8; 4] = *b"TRPT";
 /// A shard's share of T (shard files only).
 pub const TAG_SHARD: [u8; 4] = *b"TSHD";
+
+/// The minor versions (of [`VERSION_MAJOR`]) from which this build reads the section `tag`:
+/// any for the sections of a baked file, whose layout is fixed within the major version; for
+/// `TSHD`, whose layout a minor version may change, [`SHARD_LAYOUT_MINOR`] to
+/// [`VERSION_MINOR`] (the version rule in [`crate::container`]).
+pub fn readable_minors(tag: [u8; 4]) -> RangeInclusive<u16> {
+    if tag == TAG_SHARD {
+        SHARD_LAYOUT_MINOR..=VERSION_MINOR
+    } else {
+        0..=u16::MAX
+    }
+}
 
 /// The R-trees of all levels, archived together.
 #[derive(Clone, Debug, Default, PartialEq, rkyv::Archive, rkyv::Serialize, rkyv::Deserialize)]
@@ -239,6 +254,7 @@ impl BakedFile {
             + rkyv::Deserialize<T, rkyv::api::high::HighDeserializer<rancor::Error>>,
     {
         let tag_str = String::from_utf8_lossy(&tag).into_owned();
+        self.check_layout(tag, &tag_str)?;
         let entry = self
             .header
             .sections
@@ -257,6 +273,35 @@ impl BakedFile {
         let archived =
             rkyv::access::<T::Archived, rancor::Error>(&bytes).map_err(|e| bad(e.to_string()))?;
         rkyv::deserialize::<T, rancor::Error>(archived).map_err(|e| bad(e.to_string()))
+    }
+
+    /// Refuses the section `tag` when this file's minor version may hold it in a layout this
+    /// build does not read ([`readable_minors`]).
+    fn check_layout(&self, tag: [u8; 4], tag_str: &str) -> Result<(), FormatError> {
+        let minors = readable_minors(tag);
+        let minor = self.header.minor;
+        if minors.contains(&minor) {
+            return Ok(());
+        }
+        let (first, last) = (*minors.start(), *minors.end());
+        let detail = if minor < first {
+            format!(
+                "written by format {VERSION_MAJOR}.{minor}, whose layout of this section this \
+                 build does not read (it reads {VERSION_MAJOR}.{first} to {VERSION_MAJOR}.{last}); \
+                 compute the file again"
+            )
+        } else {
+            format!(
+                "written by format {VERSION_MAJOR}.{minor}, whose layout of this section may \
+                 differ from the one this build reads ({VERSION_MAJOR}.{first} to \
+                 {VERSION_MAJOR}.{last}); read it with the build that wrote it"
+            )
+        };
+        Err(FormatError::BadSection {
+            path: self.path.clone(),
+            tag: tag_str.to_string(),
+            detail,
+        })
     }
 
     /// The `META` section.
@@ -295,17 +340,6 @@ impl BakedFile {
     pub fn shard(&self) -> Result<Option<ShardSection>, FormatError> {
         if !self.has_section(TAG_SHARD) {
             return Ok(None);
-        }
-        if (self.header.major, self.header.minor) < (1, 4) {
-            return Err(FormatError::BadSection {
-                path: self.path.clone(),
-                tag: "TSHD".into(),
-                detail: format!(
-                    "a shard of format {}.{}, whose layout this version no longer reads; compute \
-                     the shards again",
-                    self.header.major, self.header.minor
-                ),
-            });
         }
         let s = self.section::<ShardSection>(TAG_SHARD)?;
         let b = self.section::<Basis>(TAG_BASIS)?;

@@ -10,12 +10,12 @@
 //!
 //! Why the priority: with equal weights the coarse functions, whose supports overlap as many
 //! neighbours as the fine ones, carry about as much weight as the fine functions everywhere, so
-//! the displayed solution blurs towards the coarse levels (on a closed sphere the vector
-//! irradiance averaged over the coarse supports came out 4.5 % short). With the factor each
-//! coarser level weighs 1 % of the next finer one where that one has support, and takes over
-//! only where the finer levels have none. (Giving every point the finest level's radius instead
-//! left holes, black pixels, wherever the finest level has no points: point placement runs out
-//! of candidates there.)
+//! the displayed solution blurs towards the coarse levels (on a closed sphere it shows the
+//! irradiance averaged over the coarse supports, short of the exact value). With the factor
+//! each coarser level weighs 1 % of the next finer one where that one has support, and takes
+//! over only where the finer levels have none. (Giving every point the finest level's radius
+//! instead would leave holes, black pixels, wherever the finest level has no points: point
+//! placement runs out of candidates there.)
 
 use crate::shepard::{IndexedBasis, Support, MAX_DIM, MIN_WEIGHT_SUM};
 

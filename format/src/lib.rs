@@ -9,7 +9,8 @@
 //!   operator is tested against); [`adjacency`]: neighbours, parents, children; [`morton`]:
 //!   the point order;
 //! - [`links`]: the stored direct-to-indirect operator `S`;
-//! - [`container`], [`meta`], [`file`]: the versioned, memory-mappable file.
+//! - [`container`], [`meta`], [`file`]: the versioned, memory-mappable file; [`light`]: the
+//!   scene's light, from the manifest to the file.
 //!
 //! The per-frame operators built from a file (precomputed pull-push, receiver-major links,
 //! sparse flattening) belong to the viewer's relighting crate, `mlt-relight`. This crate
@@ -22,6 +23,7 @@ pub mod error;
 pub mod file;
 pub mod flatten;
 pub mod kernel;
+pub mod light;
 pub mod links;
 pub mod meta;
 pub mod morton;

@@ -48,7 +48,8 @@ data! {
 }
 
 data! {
-    /// The scene's default camera (DESIGN.md conventions).
+    /// The scene's default camera: right-handed world space with +Y up, `fovy_deg` the vertical
+    /// field of view in degrees, `width` x `height` pixels.
     pub struct CameraInfo {
         pub position: [f32; 3],
         pub target: [f32; 3],

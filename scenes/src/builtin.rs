@@ -431,8 +431,8 @@ fn cornell(p: &mut Params) -> Result<Built, SceneError> {
     Ok(Built {
         geometry: Geometry::Mesh(mesh),
         // Not the room's centre (0.278, 0.274, 0.28): that is 1.2 cm from the tall block's
-        // corner. This is the README's viewpoint of the OBJ version, (0, 1, 0.5), mapped into
-        // these coordinates: mid-height, in front of the blocks, 11 cm above the short one.
+        // corner. This is the viewpoint of the OBJ Cornell box's manifest, (0, 1, 0.5), mapped
+        // into these coordinates: mid-height, in front of the blocks, 11 cm above the short one.
         viewpoint: Vec3::new(0.278, 0.274, 0.15) * s,
         camera: camera(
             Vec3::new(0.278, 0.273, -0.8) * s,

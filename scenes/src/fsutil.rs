@@ -43,8 +43,7 @@ mod tests {
 
     #[test]
     fn finds_file_with_different_case() {
-        let dir = std::env::temp_dir().join(format!("mlt-fsutil-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).expect("temp dir");
+        let dir = mlt_test_support::TempDir::new("fsutil");
         let real = dir.join("Tex.JPG");
         std::fs::write(&real, b"x").expect("write");
         assert_eq!(
@@ -53,6 +52,5 @@ mod tests {
         );
         assert_eq!(resolve_case_insensitive(&real), Some(real.clone()));
         assert_eq!(resolve_case_insensitive(&dir.join("other.jpg")), None);
-        let _ = std::fs::remove_dir_all(&dir);
     }
 }

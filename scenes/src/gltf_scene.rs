@@ -547,8 +547,7 @@ mod tests {
 
     #[test]
     fn node_transforms_are_applied() {
-        let dir = std::env::temp_dir().join(format!("mlt-gltf-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).expect("temp dir");
+        let dir = mlt_test_support::TempDir::new("gltf");
         let path = write_test_gltf(&dir);
         let (mesh, warnings, _) = load_gltf(&path, 0.5).expect("loads");
         assert_eq!(mesh.triangles.len(), 2);
@@ -581,25 +580,21 @@ mod tests {
         }
         assert_eq!(mesh.albedo_at(0, (0.2, 0.2)), [0.8, 0.1, 0.1]);
         assert!(warnings.iter().any(|w| w.contains("non-triangle")));
-        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]
     fn glb_loads_like_gltf() {
-        let dir = std::env::temp_dir().join(format!("mlt-glb-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).expect("temp dir");
+        let dir = mlt_test_support::TempDir::new("glb");
         let (a, _, _) = load_gltf(&write_test_gltf(&dir), 1.0).expect("gltf loads");
         let (b, _, _) = load_gltf(&write_test_glb(&dir), 1.0).expect("glb loads");
         assert_eq!(a.triangles.len(), 2);
         assert_eq!(a.positions, b.positions);
         assert_eq!(a.triangles, b.triangles);
-        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]
     fn nan_in_buffers_is_rejected_naming_the_file_and_the_attribute() {
-        let dir = std::env::temp_dir().join(format!("mlt-gltf-nan-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).expect("temp dir");
+        let dir = mlt_test_support::TempDir::new("gltf-nan");
         // Byte offsets in test_buffer(): positions 0..36, normals 36..72.
         for (offset, value, what) in [
             (4usize, f32::NAN, "vertex 0 position"),
@@ -628,18 +623,15 @@ mod tests {
         std::fs::write(&path, json).expect("write gltf");
         let e = load_gltf(&path, 1.0).unwrap_err().to_string();
         assert!(e.contains("inf_colour.gltf"), "{e}");
-        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]
     fn broken_gltf_names_the_file() {
-        let dir = std::env::temp_dir().join(format!("mlt-gltf-bad-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).expect("temp dir");
+        let dir = mlt_test_support::TempDir::new("gltf-bad");
         let path = dir.join("broken.gltf");
         std::fs::write(&path, "{ not json").expect("write");
         let e = load_gltf(&path, 1.0).unwrap_err().to_string();
         assert!(e.contains("broken.gltf"), "{e}");
-        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

@@ -70,41 +70,8 @@ fn default_height() -> u32 {
     480
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum LightKind {
-    Point,
-    Spot,
-}
-
-/// How a spot light's intensity falls off towards the edge of its cone.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum SpotFalloff {
-    /// Full intensity inside the cone, zero outside.
-    #[default]
-    Hard,
-    /// glTF KHR_lights_punctual smooth falloff between the inner (`cone_deg / 2` by
-    /// default) and outer cone angle.
-    Smooth,
-}
-
-/// Default light: a point or spot light with RGB radiant intensity in W/sr.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct LightDesc {
-    pub kind: LightKind,
-    pub position: [f32; 3],
-    pub intensity: [f32; 3],
-    /// Spot axis (need not be unit length).
-    #[serde(default)]
-    pub direction: Option<[f32; 3]>,
-    /// Spot full cone angle in degrees (outer cone).
-    #[serde(default)]
-    pub cone_deg: Option<f32>,
-    #[serde(default)]
-    pub falloff: SpotFalloff,
-}
+/// The default light's description: the one type from the manifest to the file.
+pub use mlt_format::light::{LightDesc, LightKind, SpotFalloff};
 
 /// The manifest file as written.
 #[derive(Debug, Deserialize)]

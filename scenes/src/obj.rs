@@ -503,10 +503,10 @@ fn find_bad_face(text: &[u8]) -> Option<String> {
 mod tests {
     use super::*;
 
-    fn temp_dir(name: &str) -> PathBuf {
-        let dir = std::env::temp_dir().join(format!("mlt-obj-{name}-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).expect("temp dir");
-        dir
+    use mlt_test_support::TempDir;
+
+    fn temp_dir(name: &str) -> TempDir {
+        TempDir::new(&format!("obj-{name}"))
     }
 
     fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
@@ -549,7 +549,6 @@ mod tests {
             .iter()
             .any(|w| w.contains("glow") && w.contains("emission ignored")));
         assert_ne!(hash, 0);
-        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]
@@ -565,7 +564,6 @@ mod tests {
         assert!(warnings.iter().any(|w| w.contains("nowhere.mtl")));
         // The zero normal is absent: shading normal falls back.
         assert_eq!(mesh.shading_normal(0, (0.3, 0.3)), None);
-        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]
@@ -622,7 +620,6 @@ mod tests {
         let e = load_obj(&missing, 1.0).unwrap_err();
         assert!(matches!(e, SceneError::Io { .. }));
         assert!(e.to_string().contains("does-not-exist.obj"), "{e}");
-        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

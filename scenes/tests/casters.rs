@@ -12,7 +12,7 @@ fn sphere_mesh_agrees_with_the_analytic_sphere() {
     let centre = Vec3::ZERO;
     let mesh = MeshCaster::new(icosphere(radius, 4, [0.5; 3]));
     let sphere = SphereCaster::new(centre, radius, [0.5; 3]);
-    // The chord sag of a level-4 icosphere is below 1.5e-3 of the radius (1.1e-3 measured);
+    // The chord sag of a level-4 icosphere is below 1.5e-3 of the radius (about 1.1e-3);
     // along oblique rays the distance error is the sag over the cosine of incidence.
     let sag = 1.5e-3 * radius;
     let tol = 3.0 * sag;

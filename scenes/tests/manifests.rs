@@ -4,13 +4,15 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
+use common::TempDir;
+
 use glam::Vec3;
 use mlt_scenes::{load_manifest, load_scene, LightKind, SceneError};
 
 const TRIANGLE_OBJ: &str = "v 0 0 0\nv 4 0 0\nv 0 0 4\nf 1 3 2\n";
 
-fn setup(name: &str, manifest: &str) -> (PathBuf, PathBuf) {
-    let dir = common::temp_dir(name);
+fn setup(name: &str, manifest: &str) -> (TempDir, PathBuf) {
+    let dir = TempDir::new(&format!("scenes-{name}"));
     std::fs::create_dir_all(dir.join("meshes")).expect("mkdir");
     std::fs::write(dir.join("meshes/tri.obj"), TRIANGLE_OBJ).expect("write obj");
     let path = dir.join("scene.toml");
@@ -19,20 +21,19 @@ fn setup(name: &str, manifest: &str) -> (PathBuf, PathBuf) {
 }
 
 fn err_of(name: &str, manifest: &str) -> SceneError {
-    let (dir, path) = setup(name, manifest);
+    let (_dir, path) = setup(name, manifest);
     let e = load_manifest(&path).expect_err(name);
     let msg = e.to_string();
     assert!(
         msg.contains("scene.toml"),
         "{name}: message does not name the file: {msg}"
     );
-    let _ = std::fs::remove_dir_all(dir);
     e
 }
 
 #[test]
 fn positions_are_scaled_intensity_is_not() {
-    let (dir, path) = setup(
+    let (_dir, path) = setup(
         "scaled",
         r#"
 [scene]
@@ -80,12 +81,11 @@ seed = 9
     std::fs::write(&path, format!("# edited\n{text}")).expect("write");
     let again = load_manifest(&path).expect("loads");
     assert_ne!(again.content_hash, scene.content_hash);
-    let _ = std::fs::remove_dir_all(dir);
 }
 
 #[test]
 fn builtin_source_with_scale_and_defaults() {
-    let (dir, path) = setup(
+    let (_dir, path) = setup(
         "builtin",
         "[scene]\nsource = \"builtin:sphere?radius=2\"\nscale = 3\n",
     );
@@ -95,7 +95,6 @@ fn builtin_source_with_scale_and_defaults() {
         mlt_scenes::Geometry::Mesh(_) => panic!("sphere expected"),
     }
     assert_eq!(scene.light.intensity, [1.0; 3]);
-    let _ = std::fs::remove_dir_all(dir);
 }
 
 #[test]
@@ -150,16 +149,15 @@ fn bad_manifests_are_errors_naming_the_file() {
 
 #[test]
 fn missing_source_names_the_mesh_file() {
-    let (dir, path) = setup("missing", "[scene]\nsource = \"meshes/nothere.obj\"\n");
+    let (_dir, path) = setup("missing", "[scene]\nsource = \"meshes/nothere.obj\"\n");
     let e = load_manifest(&path).expect_err("missing mesh");
     assert!(matches!(e, SceneError::Io { .. }), "{e}");
     assert!(e.to_string().contains("nothere.obj"), "{e}");
-    let _ = std::fs::remove_dir_all(dir);
 }
 
 #[test]
 fn bare_mesh_gets_guessed_defaults() {
-    let (dir, path) = setup("bare", "[scene]\nsource = \"meshes/tri.obj\"\n");
+    let (_dir, path) = setup("bare", "[scene]\nsource = \"meshes/tri.obj\"\n");
     let obj = path.with_file_name("meshes").join("tri.obj");
     let scene = load_scene(&obj.to_string_lossy()).expect("loads");
     assert_eq!(scene.viewpoint, Vec3::new(2.0, 0.0, 2.0));
@@ -174,7 +172,6 @@ fn bare_mesh_gets_guessed_defaults() {
     // A manifest naming only the source keeps the guessed defaults.
     let via_manifest = load_manifest(&path).expect("loads");
     assert_eq!(via_manifest.viewpoint, scene.viewpoint);
-    let _ = std::fs::remove_dir_all(dir);
 }
 
 #[test]

@@ -1,5 +1,6 @@
-//! Every OBJ in shared/scenes loads with the expected triangle counts, and the manifests in
-//! scenes/ load and place their viewpoints inside the geometry.
+//! Every OBJ of the third-party scenes (see `mlt-test-support`) loads with the expected
+//! triangle counts, and the manifests in scenes/ load and place their viewpoints inside the
+//! geometry.
 
 mod common;
 
@@ -11,9 +12,7 @@ use mlt_scenes::{load_scene, Geometry, MeshCaster, RayCaster};
 
 #[test]
 fn cornell_obj_loads_with_materials() {
-    let Some(path) = common::shared_scene("cornell_box/CornellBox-Original.obj") else {
-        return;
-    };
+    let path = common::shared_scene("cornell_box/CornellBox-Original.obj");
     let (mesh, warnings, hash) = load_obj(&path, 1.0).expect("loads");
     // 18 quads = 36 triangles; the 4 duplicates (bottom faces) are valid triangles.
     assert_eq!(mesh.triangles.len(), 36);
@@ -58,9 +57,7 @@ fn cornell_obj_loads_with_materials() {
 
 #[test]
 fn sponza_loads_with_and_without_materials() {
-    let Some(with) = common::shared_scene("sponza_dabrovic/sponza_with_materials.obj") else {
-        return;
-    };
+    let with = common::shared_scene("sponza_dabrovic/sponza_with_materials.obj");
     let (mesh, warnings, _) = load_obj(&with, 1.0).expect("loads");
     assert_eq!(mesh.degenerate_dropped, 1);
     assert_eq!(mesh.triangles.len(), 66_454 - 1);
@@ -101,11 +98,9 @@ fn sponza_loads_with_and_without_materials() {
 
 #[test]
 fn sibenik_loads() {
-    let Some(path) = common::shared_scene("sibenik/sibenik.obj") else {
-        return;
-    };
+    let path = common::shared_scene("sibenik/sibenik.obj");
     let (mesh, _, _) = load_obj(&path, 1.0).expect("loads");
-    // README: 10 zero-area triangles in f64, 9 after rounding to f32.
+    // The file has 10 zero-area triangles in f64, 9 after rounding to f32.
     assert!(
         (9..=10).contains(&mesh.degenerate_dropped),
         "{}",
@@ -120,9 +115,7 @@ fn sibenik_loads() {
 
 #[test]
 fn conference_loads_and_drops_zero_area_triangles() {
-    let Some(path) = common::shared_scene("conference/conference.obj") else {
-        return;
-    };
+    let path = common::shared_scene("conference/conference.obj");
     let (mesh, _, _) = load_obj(&path, 0.003).expect("loads");
     assert_eq!(mesh.degenerate_dropped, 53_627);
     assert_eq!(mesh.triangles.len(), 331_179 - 53_627);
@@ -168,10 +161,9 @@ fn builtin_cornell_manifest() {
 
 #[test]
 fn cornell_obj_manifest() {
-    if common::shared_scene("cornell_box/CornellBox-Original.obj").is_none() {
-        return;
-    }
-    let scene = load_scene(&manifest("cornell_obj.toml").to_string_lossy()).expect("loads");
+    common::shared_scene("cornell_box/CornellBox-Original.obj");
+    let scene =
+        load_scene(&common::shared_manifest(&manifest("cornell_obj.toml")).spec()).expect("loads");
     assert_eq!(scene.viewpoint, Vec3::new(0.0, 1.0, 0.5));
     assert_eq!(scene.light.intensity, [3.6; 3]);
     assert!(
@@ -191,10 +183,9 @@ fn cornell_obj_manifest() {
 
 #[test]
 fn sponza_manifest() {
-    if common::shared_scene("sponza_dabrovic/sponza_with_materials.obj").is_none() {
-        return;
-    }
-    let scene = load_scene(&manifest("sponza.toml").to_string_lossy()).expect("loads");
+    common::shared_scene("sponza_dabrovic/sponza_with_materials.obj");
+    let scene =
+        load_scene(&common::shared_manifest(&manifest("sponza.toml")).spec()).expect("loads");
     assert_eq!(scene.bake["receiver_levels"].as_integer(), Some(6));
     assert_eq!(scene.bake["coarse_count"].as_integer(), Some(339));
     let Geometry::Mesh(mesh) = &scene.geometry else {
@@ -223,18 +214,19 @@ fn sponza_manifest() {
 
 #[test]
 fn sibenik_and_conference_manifests() {
-    if common::shared_scene("sibenik/sibenik.obj").is_some() {
-        let scene = load_scene(&manifest("sibenik.toml").to_string_lossy()).expect("loads");
-        let caster = scene.build_caster();
-        assert_viewpoint_inside(caster.as_ref(), scene.viewpoint, 3.0);
-        assert!(!caster.occluded(Vec3::from(scene.light.position), scene.viewpoint));
-    }
-    if common::shared_scene("conference/conference.obj").is_some() {
-        let scene = load_scene(&manifest("conference.toml").to_string_lossy()).expect("loads");
-        assert!((scene.scale - 0.003).abs() < 1e-9);
-        assert!((scene.viewpoint - Vec3::new(3.6, 1.2, -0.45)).length() < 1e-4);
-        assert_eq!(scene.light.intensity, [3.0; 3], "intensity is not scaled");
-        let caster = scene.build_caster();
-        assert_viewpoint_inside(caster.as_ref(), scene.viewpoint, 0.7);
-    }
+    common::shared_scene("sibenik/sibenik.obj");
+    let scene =
+        load_scene(&common::shared_manifest(&manifest("sibenik.toml")).spec()).expect("loads");
+    let caster = scene.build_caster();
+    assert_viewpoint_inside(caster.as_ref(), scene.viewpoint, 3.0);
+    assert!(!caster.occluded(Vec3::from(scene.light.position), scene.viewpoint));
+
+    common::shared_scene("conference/conference.obj");
+    let scene =
+        load_scene(&common::shared_manifest(&manifest("conference.toml")).spec()).expect("loads");
+    assert!((scene.scale - 0.003).abs() < 1e-9);
+    assert!((scene.viewpoint - Vec3::new(3.6, 1.2, -0.45)).length() < 1e-4);
+    assert_eq!(scene.light.intensity, [3.0; 3], "intensity is not scaled");
+    let caster = scene.build_caster();
+    assert_viewpoint_inside(caster.as_ref(), scene.viewpoint, 0.7);
 }

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use glam::Vec3;
 use mlt_bake::{bake_scene, BakeOptions, BakeOutput, Silent};
 use mlt_scenes::RayCaster;
+pub use mlt_test_support::{shared_scenes, SharedManifest, TempDir};
 
 /// Surface points (with shading normals facing `from`) hit by `n` rays from `from` in a
 /// golden-angle spiral of directions: query points independent of any basis.
@@ -23,18 +24,18 @@ pub fn surface_samples(caster: &dyn RayCaster, from: Vec3, n: usize) -> Vec<(Vec
         .collect()
 }
 
-/// The `shared/` folder beside the repository (scenes, papers): `$MLT_SHARED` if set, else
-/// `../shared` relative to the workspace root.
-pub fn shared_dir() -> PathBuf {
-    if let Ok(p) = std::env::var("MLT_SHARED") {
-        return PathBuf::from(p);
-    }
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared")
-}
-
 /// The workspace root.
 pub fn repo_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// The repository's manifest `scenes/NAME` of a third-party scene, pointed at the shared
+/// scenes wherever they are (see [`mlt_test_support::shared_manifest`]).
+///
+/// # Panics
+/// When the shared scenes are missing.
+pub fn shared_manifest(name: &str) -> SharedManifest {
+    mlt_test_support::shared_manifest(&repo_dir().join("scenes").join(name))
 }
 
 /// Bakes the basis only of `spec` with `levels` levels and about `coarse` level-0 points on
@@ -61,22 +62,4 @@ pub fn bake_with(spec: &str, opts: BakeOptions, threads: usize) -> BakeOutput {
         .expect("thread pool");
     pool.install(|| bake_scene(&scene, &opts, &Silent))
         .unwrap_or_else(|e| panic!("{e}"))
-}
-
-/// A temporary directory removed on drop.
-pub struct TempDir(pub PathBuf);
-
-impl TempDir {
-    pub fn new(name: &str) -> TempDir {
-        let p = std::env::temp_dir().join(format!("mlt-test-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&p);
-        std::fs::create_dir_all(&p).expect("temp dir");
-        TempDir(p)
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
 }

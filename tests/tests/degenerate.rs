@@ -8,16 +8,7 @@ use mlt_format::links::LINK_DIM;
 use mlt_format::pull_push::pull_push;
 use mlt_format::{BakeContents, BakedFile, IndexedBasis, WriteOptions};
 use mlt_scenes::RayCaster;
-use mlt_tests::{bake_with, repo_dir, shared_dir, surface_samples};
-
-fn manifest(name: &str) -> String {
-    assert!(
-        shared_dir().join("scenes").is_dir(),
-        "{} is missing: these tests need ../shared/scenes (or MLT_SHARED)",
-        shared_dir().display()
-    );
-    repo_dir().join("scenes").join(name).display().to_string()
-}
+use mlt_tests::{bake_with, shared_manifest as manifest, surface_samples, TempDir};
 
 fn small(levels: u32, coarse: u32, rays: u32) -> BakeOptions {
     BakeOptions {
@@ -117,11 +108,11 @@ fn mlt_tests_sender_levels(ib: &IndexedBasis, levels: usize) -> IndexedBasis {
 #[test]
 fn the_conference_room_bakes_without_nan_or_inf() {
     // 331k triangles, 16 % of zero area (dropped at load), back-to-back double faces.
-    let out = bake_with(&manifest("conference.toml"), small(2, 40, 32), 2);
+    let out = bake_with(&manifest("conference.toml").spec(), small(2, 40, 32), 2);
     assert!(out.contents.meta.scene.degenerate_dropped > 50_000);
     let file = check_file_is_finite("conference.mlt", &out.contents);
     let ib = file.basis().unwrap();
-    let scene = mlt_scenes::load_scene(&manifest("conference.toml")).unwrap();
+    let scene = mlt_scenes::load_scene(&manifest("conference.toml").spec()).unwrap();
     let caster = scene.build_caster();
     let points = surface_samples(caster.as_ref(), scene.viewpoint, 200);
     let l = &scene.light;
@@ -150,7 +141,7 @@ fn sponzas_flipped_and_non_unit_normals_give_no_negative_or_dark_regions() {
     // normals point against their winding. The loader renormalises, the caster orients
     // shading normals towards the ray; the relit indirect light is positive everywhere
     // seen from the courtyard.
-    let out: BakeOutput = bake_with(&manifest("sponza.toml"), small(3, 60, 64), 2);
+    let out: BakeOutput = bake_with(&manifest("sponza.toml").spec(), small(3, 60, 64), 2);
     let file = check_file_is_finite("sponza.mlt", &out.contents);
     let ib = file.basis().unwrap();
     assert!(ib
@@ -158,7 +149,7 @@ fn sponzas_flipped_and_non_unit_normals_give_no_negative_or_dark_regions() {
         .normals
         .iter()
         .all(|n| (Vec3::from(*n).length() - 1.0).abs() < 1e-4));
-    let scene = mlt_scenes::load_scene(&manifest("sponza.toml")).unwrap();
+    let scene = mlt_scenes::load_scene(&manifest("sponza.toml").spec()).unwrap();
     let caster = scene.build_caster();
     let points = surface_samples(caster.as_ref(), scene.viewpoint, 400);
     let l = &scene.light;
@@ -188,9 +179,8 @@ fn sponzas_flipped_and_non_unit_normals_give_no_negative_or_dark_regions() {
 }
 
 /// A manifest around a built-in, written to a temporary directory.
-fn manifest_file(name: &str, text: &str) -> (std::path::PathBuf, String) {
-    let dir = std::env::temp_dir().join(format!("mlt-degenerate-{name}-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+fn manifest_file(name: &str, text: &str) -> (TempDir, String) {
+    let dir = TempDir::new(&format!("degenerate-{name}"));
     let path = dir.join(format!("{name}.toml"));
     std::fs::write(&path, text).unwrap();
     let spec = path.display().to_string();
@@ -211,9 +201,9 @@ fn a_spot_light_pointing_at_nothing_is_reported() {
     );
     let out = bake_with(&spec, opts(), 1);
     assert!(!out.warnings.iter().any(|w| w.contains("lights no surface")));
-    let _ = std::fs::remove_dir_all(dir);
+    drop(dir);
     // Outside the box, pointing away from it: the bake says the light lights nothing.
-    let (dir, spec) = manifest_file(
+    let (_dir, spec) = manifest_file(
         "spot_out",
         &format!("{base}[light]\nkind = \"spot\"\nposition = [0, 5, 0]\nintensity = [1, 1, 1]\ndirection = [0, 1, 0]\ncone_deg = 40\n"),
     );
@@ -227,14 +217,13 @@ fn a_spot_light_pointing_at_nothing_is_reported() {
         w.contains("spot light") && w.contains("spot_out.toml"),
         "{w}"
     );
-    let _ = std::fs::remove_dir_all(dir);
 }
 
 #[test]
 fn finer_levels_without_links_are_left_out_and_change_nothing() {
     // At epsilon 0.5 no link of the Cornell box survives: only the sender levels are stored
     // (the refinement reaches every level wherever a link survives, so on our scenes at
-    // working epsilons no level is left out; see the README).
+    // working epsilons no level is left out).
     let spec = "builtin:cornell";
     let out = bake_with(
         spec,

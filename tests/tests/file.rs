@@ -8,7 +8,7 @@ fn round_trip_through_disk_with_and_without_compression() {
     let out = bake_small("builtin:cornell", 2, 20, 2);
     let dir = TempDir::new("roundtrip");
     for compress in [false, true] {
-        let path = dir.0.join(format!("c{compress}.mlt"));
+        let path = dir.join(format!("c{compress}.mlt"));
         let size =
             mlt_format::file::write(&path, &out.contents, WriteOptions { compress }).unwrap();
         assert_eq!(std::fs::metadata(&path).unwrap().len(), size);
@@ -20,7 +20,7 @@ fn round_trip_through_disk_with_and_without_compression() {
         assert_eq!(info.levels.len(), 2);
         assert!(info.sections.iter().all(|s| s.compressed == compress));
         // No temporary file is left behind.
-        let leftovers: Vec<_> = std::fs::read_dir(&dir.0)
+        let leftovers: Vec<_> = std::fs::read_dir(&*dir)
             .unwrap()
             .filter_map(|e| e.ok())
             .filter(|e| e.file_name().to_string_lossy().contains(".tmp"))
@@ -108,4 +108,57 @@ fn rehash(bytes: &mut [u8]) {
     bytes[40..48].fill(0);
     let h = xxh3_64(&bytes[..header_len]);
     bytes[40..48].copy_from_slice(&h.to_le_bytes());
+}
+
+/// The version rule: the sections of a baked file read from any minor version of the major
+/// version; a shard's `TSHD` only from the minor versions with the layout this build reads,
+/// and any other is refused naming both versions.
+#[test]
+fn shard_sections_are_read_only_from_the_minor_versions_with_their_layout() {
+    use mlt_format::container::{SHARD_LAYOUT_MINOR, VERSION_MAJOR, VERSION_MINOR};
+    use mlt_format::file::{readable_minors, TAG_BASIS, TAG_META, TAG_SHARD};
+    let out = mlt_tests::bake_with(
+        "builtin:cornell",
+        mlt_bake::BakeOptions {
+            receiver_levels: Some(2),
+            coarse_count: Some(20),
+            gather_rays: Some(16),
+            shard: Some((0, 2)),
+            ..Default::default()
+        },
+        1,
+    );
+    assert!(out.contents.shard.is_some());
+    let bytes = mlt_format::file::encode(&out.contents, WriteOptions::default()).unwrap();
+    let with_minor = |minor: u16| {
+        let mut b = bytes.clone();
+        b[10..12].copy_from_slice(&minor.to_le_bytes());
+        rehash(&mut b);
+        b
+    };
+    let path = std::path::Path::new("shard.mlt");
+    for minor in [SHARD_LAYOUT_MINOR, VERSION_MINOR] {
+        let b = with_minor(minor);
+        let f = BakedFile::from_bytes(path, &b).unwrap();
+        assert_eq!(f.shard().unwrap(), out.contents.shard, "minor {minor}");
+    }
+    for minor in [SHARD_LAYOUT_MINOR - 1, VERSION_MINOR + 1] {
+        let b = with_minor(minor);
+        let f = BakedFile::from_bytes(path, &b).unwrap();
+        let e = f.shard().expect_err("a shard of another layout was read");
+        let msg = e.to_string();
+        assert!(matches!(e, FormatError::BadSection { .. }), "{msg}");
+        assert!(
+            msg.contains("TSHD")
+                && msg.contains(&format!("{VERSION_MAJOR}.{minor}"))
+                && msg.contains(&format!("{VERSION_MAJOR}.{SHARD_LAYOUT_MINOR}")),
+            "{msg}"
+        );
+        // The baked file's sections read whatever the minor version.
+        assert_eq!(f.meta().unwrap(), out.contents.meta);
+        assert_eq!(f.basis().unwrap(), out.contents.basis);
+    }
+    assert!(readable_minors(TAG_META).contains(&u16::MAX));
+    assert!(readable_minors(TAG_BASIS).contains(&0));
+    assert!(!readable_minors(TAG_SHARD).contains(&(VERSION_MINOR + 1)));
 }

@@ -105,8 +105,7 @@ fn non_finite_bake_options_are_refused_naming_the_option() {
 /// before the bake would refuse them without a file name.
 #[test]
 fn a_manifest_bake_table_with_nan_names_the_manifest() {
-    let dir = std::env::temp_dir().join(format!("mlt-inputs-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = mlt_tests::TempDir::new("inputs");
     let path = dir.join("nan_bake.toml");
     std::fs::write(
         &path,
@@ -119,5 +118,4 @@ fn a_manifest_bake_table_with_nan_names_the_manifest() {
         msg.contains("nan_bake.toml") && msg.contains("[bake] epsilon"),
         "{msg}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }

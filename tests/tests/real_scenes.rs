@@ -1,20 +1,11 @@
-//! Bakes of the real third-party scenes in ../shared/scenes through their manifests (few
+//! Bakes of the real third-party scenes (see `mlt-test-support`) through their manifests (few
 //! levels, so that the test stays quick; the full-size runs are benchmarks).
 
 use mlt_format::kernel::poisson_distance;
-use mlt_tests::{bake_small, repo_dir, shared_dir};
-
-fn manifest(name: &str) -> String {
-    assert!(
-        shared_dir().join("scenes").is_dir(),
-        "{} is missing: the scene tests need ../shared/scenes (or MLT_SHARED)",
-        shared_dir().display()
-    );
-    repo_dir().join("scenes").join(name).display().to_string()
-}
+use mlt_tests::{bake_small, shared_manifest as manifest};
 
 fn check_basis(name: &str, levels: u32, coarse: u32) {
-    let out = bake_small(&manifest(name), levels, coarse, 2);
+    let out = bake_small(&manifest(name).spec(), levels, coarse, 2);
     let b = &out.contents.basis.basis;
     b.validate().unwrap();
     assert_eq!(b.levels(), levels as usize);

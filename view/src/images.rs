@@ -1,5 +1,5 @@
-//! Image outputs of DESIGN.md: linear HDR radiance as OpenEXR (float RGB) and a tone-mapped
-//! PNG for people (Reinhard et al. 2002, global operator). Files are written atomically.
+//! Image outputs: linear HDR radiance as OpenEXR (float RGB) and a tone-mapped PNG for people
+//! (Reinhard et al. 2002, global operator). Files are written atomically.
 
 use std::io::Cursor;
 use std::path::Path;
@@ -225,8 +225,7 @@ mod tests {
 
     #[test]
     fn exr_round_trips_exactly() {
-        let dir = std::env::temp_dir().join(format!("mlt-images-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = mlt_test_support::TempDir::new("images");
         let mut img = RgbImage::new(4, 3);
         for (k, p) in img.pixels.iter_mut().enumerate() {
             *p = [k as f32 * 0.125, 1e-3 * k as f32, 1e3 + k as f32];
@@ -236,6 +235,5 @@ mod tests {
         assert_eq!(RgbImage::read_exr(&path).unwrap(), img);
         img.write_png(&dir.join("a.png")).unwrap();
         assert!(std::fs::metadata(dir.join("a.png")).unwrap().len() > 0);
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -211,13 +211,11 @@ fn lights_on_a_surface_or_aimed_at_nothing_give_finite_light() {
 
 #[test]
 fn an_empty_scene_is_refused_with_the_file_named() {
-    let d = std::env::temp_dir().join(format!("mlt-empty-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
+    let d = mlt_test_support::TempDir::new("empty");
     let f = d.join("empty.obj");
     std::fs::write(&f, "# nothing\nv 0 0 0\n").unwrap();
     let e = mlt_scenes::load_scene(&f.display().to_string())
         .unwrap_err()
         .to_string();
     assert!(e.contains("empty.obj"), "{e}");
-    let _ = std::fs::remove_dir_all(&d);
 }

@@ -6,73 +6,19 @@ mod common;
 
 use std::process::Command;
 
-use common::bake_to;
+use common::{bake_to, gpu, render, small};
 use glam::Vec3;
 use mlt_bake::BakeOptions;
 use mlt_format::flatten::reconstruct_flat;
 use mlt_format::links::LINK_DIM;
 use mlt_format::BakedFile;
 use mlt_view::gpu::mesh::GpuMesh;
-use mlt_view::gpu::{Buffers, GBuffer, Gpu, Renderer};
+use mlt_view::gpu::{Buffers, Renderer};
 use mlt_view::images::RgbImage;
-use mlt_view::{Camera, CpuRelighter, Light, Relight};
+use mlt_view::{CpuRelighter, Light, Relight};
 
-fn temp(name: &str) -> std::path::PathBuf {
+fn temp(name: &str) -> common::TempDir {
     common::temp_dir("gpu", name)
-}
-
-fn gpu() -> Gpu {
-    Gpu::headless().unwrap_or_else(|e| {
-        panic!("these tests need a Vulkan adapter (scripts/setup.sh installs Mesa's): {e}")
-    })
-}
-
-/// Bakes `spec`, relights it with `light` and renders it with `camera` (or the file's).
-fn render(
-    spec: &str,
-    opts: BakeOptions,
-    light: Option<Light>,
-    camera: impl Fn(&Camera) -> Camera,
-    name: &str,
-) -> (Buffers, GBuffer, Vec<f32>, mlt_format::IndexedBasis, Light) {
-    let d = temp(name);
-    let f = d.join("scene.mlt");
-    bake_to(&f, spec, opts);
-    let file = BakedFile::open(&f).unwrap();
-    let meta = file.meta().unwrap();
-    let ib = file.basis().unwrap();
-    let tm = file.transport_meta().unwrap().unwrap();
-    let lb = file.links_bytes().unwrap().unwrap();
-    let links = file.access_links(&lb).unwrap();
-    let scene = mlt_scenes::load_scene(spec).unwrap();
-    let caster = scene.build_caster();
-    let light = light.unwrap_or_else(|| Light::from_info(&meta.light).unwrap());
-    let camera = camera(&Camera::from_info(&meta.camera).unwrap());
-    let mut relighter = CpuRelighter::new(
-        &ib,
-        links,
-        caster.as_ref(),
-        tm.params.sender_levels as usize,
-        8,
-    );
-    let flat = relighter.relight(&light).flat.clone();
-    let gpu = gpu();
-    let mut renderer = Renderer::new(&gpu, &GpuMesh::from_scene(&scene), &ib.basis, 512).unwrap();
-    renderer.set_coefficients(&gpu, &flat);
-    renderer.render(&gpu, &ib, &camera, &light, true).unwrap();
-    let buffers = renderer.read_buffers(&gpu).unwrap();
-    let gbuffer = renderer.read_gbuffer(&gpu).unwrap();
-    let _ = std::fs::remove_dir_all(&d);
-    (buffers, gbuffer, flat, ib, light)
-}
-
-fn small(w: u32, h: u32) -> impl Fn(&Camera) -> Camera {
-    move |c: &Camera| {
-        let mut c = *c;
-        c.width = w;
-        c.height = h;
-        c
-    }
 }
 
 fn cornell_options() -> BakeOptions {
@@ -318,7 +264,6 @@ fn render_cli_writes_finite_non_black_images_and_timings() {
     let gpu = RgbImage::read_exr(&d.join("gpu/indirect.exr")).unwrap();
     let diff = relative_difference(&gpu, &cpu);
     assert!(diff < 1e-4, "GPU and CPU flattening differ by {diff}");
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]
@@ -345,7 +290,6 @@ fn window_without_a_display_says_so_and_suggests_view_render() {
     assert!(!r.status.success());
     let err = String::from_utf8_lossy(&r.stderr);
     assert!(err.contains("view render"), "{err}");
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]
@@ -388,7 +332,6 @@ fn window_opens_under_xvfb_and_saves_every_view() {
         let lit = img.pixels().filter(|p| p.0.iter().any(|&c| c > 10)).count();
         assert!(lit > 96 * 72 / 4, "{mode}: only {lit} lit pixels");
     }
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 /// Mean of |a - b| over pixels, relative to the mean of b.
@@ -472,13 +415,12 @@ fn the_rendered_image_does_not_depend_on_the_scenes_scale() {
 
 #[test]
 fn the_conference_room_renders_without_nan_or_inf() {
-    // The Conference Room: 16 % zero-area triangles and back-to-back double faces.
-    let manifest = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../scenes/conference.toml")
-        .display()
-        .to_string();
+    // The conference room: 16 % zero-area triangles and back-to-back double faces.
+    let manifest = mlt_test_support::shared_manifest(
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/conference.toml"),
+    );
     let (b, g, _, _, _) = render(
-        &manifest,
+        &manifest.spec(),
         BakeOptions {
             receiver_levels: Some(2),
             coarse_count: Some(40),
@@ -550,5 +492,4 @@ fn gpu_flattening_equals_the_cpu_operator() {
     relighter.set_flatten_on_cpu(false);
     let frame2 = relighter.relight(&light);
     assert!(frame2.flat.is_empty() && frame2.i == frame.i);
-    let _ = std::fs::remove_dir_all(&d);
 }

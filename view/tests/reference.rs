@@ -3,7 +3,7 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
 use glam::Vec3;
@@ -15,7 +15,7 @@ use mlt_view::reference::{
 };
 use mlt_view::{Camera, Light, RgbImage};
 
-fn temp(name: &str) -> PathBuf {
+fn temp(name: &str) -> common::TempDir {
     common::temp_dir("reference", name)
 }
 
@@ -328,7 +328,6 @@ fn compare_reports_zero_for_identical_dirs_and_the_scale_of_a_scaled_image() {
         e.contains("final.exr") && e.contains("(7, 0)") && e.contains("not finite"),
         "{e}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `view reference SCENE`: the scene's camera and light with the command line's overrides, the
@@ -366,7 +365,6 @@ fn reference_cli_renders_the_scene_with_its_overrides() {
         .unwrap();
     assert!(!r.status.success());
     assert!(String::from_utf8_lossy(&r.stderr).contains("nothing to do"));
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 fn write(path: &Path, s: &str) {
@@ -433,5 +431,4 @@ fn probe_csvs_compare_row_by_row() {
     write(&tp, &test_csv(0.5));
     let e = compare_probe_csv(&rp, &tp).unwrap_err().to_string();
     assert!(e.contains("test.csv") && e.contains("probe 2"), "{e}");
-    let _ = std::fs::remove_dir_all(&dir);
 }

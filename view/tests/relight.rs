@@ -14,7 +14,7 @@ use mlt_format::BakedFile;
 use mlt_view::probe::{evaluate, Probe};
 use mlt_view::{CpuRelighter, Light, Relight};
 
-fn temp(name: &str) -> std::path::PathBuf {
+fn temp(name: &str) -> common::TempDir {
     common::temp_dir("view", name)
 }
 
@@ -24,7 +24,7 @@ fn small_cornell(
     name: &str,
     gather_rays: u32,
 ) -> (
-    std::path::PathBuf,
+    common::TempDir,
     BakedFile,
     mlt_format::IndexedBasis,
     usize,
@@ -105,7 +105,6 @@ fn closed_sphere_probes_give_the_analytic_direct_and_indirect_light() {
     assert!(r.relight(&light).reused);
     let moved = Light::point(Vec3::new(0.1, 0.0, 0.0), [1.0; 3]).unwrap();
     assert!(!r.relight(&moved).reused);
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 /// Unit directions on a golden-angle spiral.
@@ -218,7 +217,6 @@ fn cornell_box_bleeds_red_and_green_onto_the_white_back_wall() {
         .unwrap();
     assert!(!r.status.success());
     assert!(String::from_utf8_lossy(&r.stderr).contains("view render"));
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 fn bits(v: &[f32]) -> Vec<u32> {
@@ -231,7 +229,7 @@ fn bits(v: &[f32]) -> Vec<u32> {
 /// cost about 1e-3, relative); and the same bits for 1 and 2 threads.
 #[test]
 fn precomputed_stages_match_the_reference_stages() {
-    let (d, file, ib, sender_levels, caster) = small_cornell("stages", 64);
+    let (_d, file, ib, sender_levels, caster) = small_cornell("stages", 64);
     assert!(sender_levels >= 2, "{sender_levels}");
     let lb = file.links_bytes().unwrap().unwrap();
     let links = file.access_links(&lb).unwrap();
@@ -295,14 +293,13 @@ fn precomputed_stages_match_the_reference_stages() {
     let (one, _, _) = run(1);
     assert_eq!(bits(&one.direct), bits(&frame.direct));
     assert_eq!(bits(&one.flat), bits(&frame.flat));
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 /// Adaptive shadow rays (half first, the rest only where they disagree) cast fewer rays and
 /// change the direct light only in the penumbra, where they still give fractions.
 #[test]
 fn adaptive_shadow_rays_only_refine_the_penumbra() {
-    let (d, file, ib, sender_levels, caster) = small_cornell("adaptive", 16);
+    let (_d, file, ib, sender_levels, caster) = small_cornell("adaptive", 16);
     let lb = file.links_bytes().unwrap().unwrap();
     let links = file.access_links(&lb).unwrap();
     // Low and to the side: the blocks cast long shadows with wide penumbrae on the floor.
@@ -341,5 +338,4 @@ fn adaptive_shadow_rays_only_refine_the_penumbra() {
         moved < 0.05 * total,
         "{changed} points moved {moved} of {total}"
     );
-    let _ = std::fs::remove_dir_all(&d);
 }

@@ -1,34 +1,7 @@
 //! Helpers shared by the integration tests.
-#![allow(dead_code)]
+#![allow(dead_code, unused_imports)]
 
-use std::path::PathBuf;
-
-/// The shared scene folder: `$MLT_SHARED`, else `CARGO_MANIFEST_DIR/../../shared`.
-pub fn shared_dir() -> PathBuf {
-    match std::env::var_os("MLT_SHARED") {
-        Some(p) => PathBuf::from(p),
-        None => PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared"),
-    }
-}
-
-/// Path of a file under `shared/scenes/`, or `None` (with a note) when it is not there.
-pub fn shared_scene(rel: &str) -> Option<PathBuf> {
-    let p = shared_dir().join("scenes").join(rel);
-    if p.is_file() {
-        Some(p)
-    } else {
-        eprintln!("skipping: {} not found (set MLT_SHARED)", p.display());
-        None
-    }
-}
-
-/// A fresh temporary directory for one test.
-pub fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("mlt-scenes-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("create temp dir");
-    dir
-}
+pub use mlt_test_support::{shared_manifest, shared_scene, TempDir};
 
 /// Deterministic unit vectors (splitmix64 → uniform on the sphere).
 pub fn directions(n: usize, seed: u64) -> Vec<glam::Vec3> {

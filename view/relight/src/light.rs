@@ -1,8 +1,12 @@
-//! The light model, the same as the bake's (the file's [`LightInfo`]): a point or spot light of
-//! RGB radiant intensity `I` (W/sr); direct irradiance `E = I max(0, cos) / d^2 V`, inside the
-//! spot's cone.
+//! The scene's light prepared for evaluation: a point or spot light of RGB radiant intensity
+//! `I` (W/sr) whose direct irradiance is `E = I max(0, cos) / d^2 V`, inside the spot's cone.
+//!
+//! The light is described by [`LightDesc`] (`mlt_format::light`), from the manifest to the
+//! file; [`Light`] is built from that description once (checked, the cone's cosines
+//! precomputed) and is what the relighting, the renderer and the reference evaluate.
 
 use glam::Vec3;
+use mlt_format::light::{LightDesc, LightKind, SpotFalloff};
 use mlt_format::meta::LightInfo;
 
 /// How a spot light's intensity falls off towards the edge of its cone.
@@ -91,20 +95,25 @@ impl Light {
         })
     }
 
-    /// The light stored in a baked file.
-    pub fn from_info(info: &LightInfo) -> Result<Light, LightError> {
-        let p = Vec3::from(info.position);
-        if info.kind == "spot" {
-            Light::spot(
-                p,
-                info.intensity,
-                Vec3::from(info.direction),
-                info.cone_deg,
-                info.falloff == "smooth",
-            )
-        } else {
-            Light::point(p, info.intensity)
+    /// The light a description gives (a spot without an axis points down; without a cone
+    /// it is refused).
+    pub fn from_desc(l: &LightDesc) -> Result<Light, LightError> {
+        match l.kind {
+            LightKind::Point => Light::point(l.position.into(), l.intensity),
+            LightKind::Spot => Light::spot(
+                l.position.into(),
+                l.intensity,
+                l.direction.unwrap_or([0.0, -1.0, 0.0]).into(),
+                l.cone_deg.unwrap_or(0.0),
+                l.falloff == SpotFalloff::Smooth,
+            ),
         }
+    }
+
+    /// The light stored in a baked file; an unknown kind or falloff is an error naming it.
+    pub fn from_info(info: &LightInfo) -> Result<Light, LightError> {
+        let desc = LightDesc::try_from(info).map_err(|e| LightError(e.to_string()))?;
+        Light::from_desc(&desc)
     }
 
     /// Unoccluded direct irradiance at the surface point `(x, n)`, per colour channel.
@@ -178,5 +187,24 @@ mod tests {
         assert!(Light::spot(Vec3::Y, [1.0; 3], Vec3::Y, 180.0, false).is_err());
         assert!(Light::point(Vec3::new(f32::NAN, 0.0, 0.0), [1.0; 3]).is_err());
         assert!(Light::point(Vec3::ZERO, [1.0, f32::INFINITY, 0.0]).is_err());
+    }
+
+    #[test]
+    fn a_stored_light_evaluates_like_its_description() {
+        let desc = LightDesc {
+            kind: LightKind::Spot,
+            position: [0.0, 1.0, 0.0],
+            intensity: [1.0, 2.0, 3.0],
+            direction: Some([0.0, -2.0, 0.0]),
+            cone_deg: Some(60.0),
+            falloff: SpotFalloff::Smooth,
+        };
+        let stored = Light::from_info(&LightInfo::from(&desc)).unwrap();
+        assert_eq!(stored, Light::from_desc(&desc).unwrap());
+        assert!(matches!(stored.cone, Cone::Smooth { .. }));
+        let mut info = LightInfo::from(&desc);
+        info.kind = "area".into();
+        let e = Light::from_info(&info).unwrap_err().to_string();
+        assert!(e.contains("'area'"), "{e}");
     }
 }

@@ -8,7 +8,7 @@ use anyhow::{Context, Result};
 use glam::Vec3;
 use mlt_format::meta::CameraInfo;
 use mlt_format::{BakedFile, IndexedBasis, Meta};
-use mlt_scenes::{LightKind, RayCaster, Scene, SpotFalloff};
+use mlt_scenes::{RayCaster, Scene};
 use mlt_view::{Camera, CpuRelighter, Light};
 
 use crate::cmd::args::{BakedArgs, SceneArgs};
@@ -165,17 +165,7 @@ fn load_scene(spec: &str) -> Result<Scene> {
 
 /// A scene's own light.
 fn scene_light(scene: &Scene) -> Result<Light, mlt_relight::light::LightError> {
-    let l = &scene.light;
-    match l.kind {
-        LightKind::Point => Light::point(l.position.into(), l.intensity),
-        LightKind::Spot => Light::spot(
-            l.position.into(),
-            l.intensity,
-            l.direction.unwrap_or([0.0, -1.0, 0.0]).into(),
-            l.cone_deg.unwrap_or(0.0),
-            l.falloff == SpotFalloff::Smooth,
-        ),
-    }
+    Light::from_desc(&scene.light)
 }
 
 /// The camera `base` with the command line's overrides.

@@ -1,11 +1,16 @@
 //! What the view crate's test files share. (Each test file compiles this module on its own and
 //! uses part of it, hence the allowance.)
-#![allow(dead_code)]
+#![allow(dead_code, unused_imports)]
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use mlt_bake::{bake_scene, BakeOptions, Silent};
-use mlt_format::WriteOptions;
+use mlt_format::{BakedFile, WriteOptions};
+use mlt_view::gpu::mesh::GpuMesh;
+use mlt_view::gpu::{Buffers, GBuffer, Gpu, Renderer};
+use mlt_view::{Camera, CpuRelighter, Light, Relight};
+
+pub use mlt_test_support::{shared_scenes, TempDir};
 
 /// Bakes the scene `spec` with `opts` into `path`.
 pub fn bake_to(path: &Path, spec: &str, opts: BakeOptions) {
@@ -14,10 +19,62 @@ pub fn bake_to(path: &Path, spec: &str, opts: BakeOptions) {
     mlt_format::file::write(path, &out.contents, WriteOptions::default()).unwrap();
 }
 
-/// A fresh, empty directory `mlt-{file}-{name}-{process}` under the system's temporary one.
-pub fn temp_dir(file: &str, name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("mlt-{file}-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A fresh, empty directory for the test `name` of the test file `file`, removed on drop.
+pub fn temp_dir(file: &str, name: &str) -> TempDir {
+    TempDir::new(&format!("{file}-{name}"))
+}
+
+/// The headless GPU, or a panic saying what these tests need.
+pub fn gpu() -> Gpu {
+    Gpu::headless().unwrap_or_else(|e| {
+        panic!("these tests need a Vulkan adapter (scripts/setup.sh installs Mesa's): {e}")
+    })
+}
+
+/// Bakes `spec`, relights it with `light` and renders it with `camera` (or the file's).
+pub fn render(
+    spec: &str,
+    opts: BakeOptions,
+    light: Option<Light>,
+    camera: impl Fn(&Camera) -> Camera,
+    name: &str,
+) -> (Buffers, GBuffer, Vec<f32>, mlt_format::IndexedBasis, Light) {
+    let d = temp_dir("render", name);
+    let f = d.join("scene.mlt");
+    bake_to(&f, spec, opts);
+    let file = BakedFile::open(&f).unwrap();
+    let meta = file.meta().unwrap();
+    let ib = file.basis().unwrap();
+    let tm = file.transport_meta().unwrap().unwrap();
+    let lb = file.links_bytes().unwrap().unwrap();
+    let links = file.access_links(&lb).unwrap();
+    let scene = mlt_scenes::load_scene(spec).unwrap();
+    let caster = scene.build_caster();
+    let light = light.unwrap_or_else(|| Light::from_info(&meta.light).unwrap());
+    let camera = camera(&Camera::from_info(&meta.camera).unwrap());
+    let mut relighter = CpuRelighter::new(
+        &ib,
+        links,
+        caster.as_ref(),
+        tm.params.sender_levels as usize,
+        8,
+    );
+    let flat = relighter.relight(&light).flat.clone();
+    let gpu = gpu();
+    let mut renderer = Renderer::new(&gpu, &GpuMesh::from_scene(&scene), &ib.basis, 512).unwrap();
+    renderer.set_coefficients(&gpu, &flat);
+    renderer.render(&gpu, &ib, &camera, &light, true).unwrap();
+    let buffers = renderer.read_buffers(&gpu).unwrap();
+    let gbuffer = renderer.read_gbuffer(&gpu).unwrap();
+    (buffers, gbuffer, flat, ib, light)
+}
+
+/// The camera `c` at `w` x `h` pixels.
+pub fn small(w: u32, h: u32) -> impl Fn(&Camera) -> Camera {
+    move |c: &Camera| {
+        let mut c = *c;
+        c.width = w;
+        c.height = h;
+        c
+    }
 }
