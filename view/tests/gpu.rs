@@ -1,5 +1,4 @@
-//! The wgpu renderer against CPU references and analytic values (issue 4's "tests that must
-//! hold"). They need a Vulkan adapter; on machines without a GPU, Mesa's software driver
+//! The wgpu renderer against CPU references and analytic values. They need a Vulkan adapter; on machines without a GPU, Mesa's software driver
 //! (`scripts/setup.sh` installs it) serves.
 
 mod common;
