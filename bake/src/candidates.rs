@@ -9,7 +9,7 @@ use mlt_scenes::RayCaster;
 use rayon::prelude::*;
 
 use crate::rng::{Rng, Stream};
-use crate::sampling::{cosine_hemisphere, uniform_sphere};
+use mlt_scenes::sampling::{cosine_hemisphere, uniform_sphere};
 
 /// Longest particle path accepted (the paper uses 30 bounces).
 pub const MAX_BOUNCES: usize = 1000;

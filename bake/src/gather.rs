@@ -19,7 +19,7 @@ use mlt_format::IndexedBasis;
 use mlt_scenes::RayCaster;
 
 use crate::rng::{Rng, Stream};
-use crate::sampling::tangent_frame;
+use mlt_scenes::sampling::tangent_frame;
 
 /// A dense accumulator over senders with a list of the ones touched, reused between
 /// receivers (no allocation per ray or per link).

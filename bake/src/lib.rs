@@ -22,7 +22,6 @@ pub mod poisson;
 pub mod refine;
 pub mod report;
 pub mod rng;
-pub mod sampling;
 pub mod shard;
 pub mod table1;
 pub mod transport;

@@ -497,7 +497,7 @@ pub fn light_warning(scene: &Scene, caster: &dyn RayCaster) -> Option<String> {
     }
     let mut rng = crate::rng::Rng::new(1, crate::rng::Stream::Hmd, u64::MAX);
     for _ in 0..LIGHT_PROBE_RAYS {
-        let d = crate::sampling::uniform_cone(axis, cos_max, rng.next_f32(), rng.next_f32());
+        let d = mlt_scenes::sampling::uniform_cone(axis, cos_max, rng.next_f32(), rng.next_f32());
         if caster.intersect(origin, d, 0.0, f32::INFINITY).is_some() {
             return None;
         }

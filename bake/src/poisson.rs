@@ -12,7 +12,7 @@ use mlt_scenes::RayCaster;
 use crate::candidates::{Candidate, CandidatePool};
 use crate::grid::Grid;
 use crate::rng::{Rng, Stream};
-use crate::sampling::cosine_hemisphere;
+use mlt_scenes::sampling::cosine_hemisphere;
 
 /// Settings of the dart thrower.
 #[derive(Clone, Copy, Debug)]

@@ -18,6 +18,7 @@ pub mod mesh;
 pub mod mesh_caster;
 pub mod obj;
 pub mod raycast;
+pub mod sampling;
 pub mod scene;
 pub mod sphere_caster;
 pub mod texture;

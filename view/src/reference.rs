@@ -44,6 +44,7 @@ use std::time::Instant;
 
 use glam::Vec3;
 use mlt_relight::Light;
+use mlt_scenes::sampling::cosine_hemisphere;
 use mlt_scenes::RayCaster;
 use rayon::prelude::*;
 
@@ -224,30 +225,13 @@ fn positive(x: f32) -> bool {
     x > 0.0
 }
 
-// `onb` and `cosine_sample` are `mlt_bake::sampling::{tangent_frame, cosine_hemisphere}`
-// operation for operation; they stay here until that code moves to a crate the viewer depends
-// on (mlt-scenes), since the viewer cannot depend on the bake. The random streams stay the
-// reference's own: independent of the bake's, so the reference shares no sample with it.
-
-/// An orthonormal basis around the unit vector `n` (Duff et al. 2017).
-fn onb(n: Vec3) -> (Vec3, Vec3) {
-    let sign = 1.0f32.copysign(n.z);
-    let a = -1.0 / (sign + n.z);
-    let b = n.x * n.y * a;
-    (
-        Vec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x),
-        Vec3::new(b, sign + n.y * n.y * a, -n.y),
-    )
-}
+// The directions come from the bake's samplers (`mlt_scenes::sampling`); the random streams
+// stay the reference's own, so the reference shares no sample with the bake.
 
 /// A cosine-distributed direction about `n` (pdf `cos θ / π`).
 fn cosine_sample(n: Vec3, rng: &mut Pcg32) -> Vec3 {
     let (u1, u2) = (rng.next_f32(), rng.next_f32());
-    let r = u1.sqrt();
-    let phi = std::f32::consts::TAU * u2;
-    let (t, b) = onb(n);
-    let z = (1.0 - u1).max(0.0).sqrt();
-    (t * (r * phi.cos()) + b * (r * phi.sin()) + n * z).normalize()
+    cosine_hemisphere(n, u1, u2)
 }
 
 /// The integrator's fixed state.

@@ -1,4 +1,5 @@
-//! Direction sampling.
+//! Direction sampling shared by the bake (particles, gathers, dart-thrower rays) and the
+//! viewer's path-traced reference: the same function for the same distribution.
 
 use glam::Vec3;
 
@@ -49,7 +50,29 @@ pub fn uniform_cone(a: Vec3, cos_max: f32, u1: f32, u2: f32) -> Vec3 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::rng::{Rng, Stream};
+
+    /// Deterministic uniform pairs: the Halton sequence in bases 2 and 3, offset per test.
+    struct Halton(u32);
+
+    impl Halton {
+        fn new(offset: u32) -> Halton {
+            Halton(offset * 100_003)
+        }
+
+        fn next_pair(&mut self) -> (f32, f32) {
+            let inverse = |mut k: u32, base: u32| {
+                let (mut f, mut r) = (1.0f64, 0.0f64);
+                while k > 0 {
+                    f /= base as f64;
+                    r += f * (k % base) as f64;
+                    k /= base;
+                }
+                r.min(1.0 - f64::EPSILON) as f32
+            };
+            self.0 += 1;
+            (inverse(self.0, 2), inverse(self.0, 3))
+        }
+    }
 
     #[test]
     fn frames_are_orthonormal_including_the_pole() {
@@ -69,11 +92,12 @@ mod tests {
     fn cosine_samples_have_mean_cosine_two_thirds() {
         // E[cos] under the cosine pdf is 2/3; fixed seed, 5 standard errors.
         let n = Vec3::new(0.2, 0.9, -0.1).normalize();
-        let mut r = Rng::new(9, Stream::Hmd, 1);
+        let mut r = Halton::new(9);
         let m = 50_000;
         let mut sum = 0.0f64;
         for _ in 0..m {
-            let d = cosine_hemisphere(n, r.next_f32(), r.next_f32());
+            let (u1, u2) = r.next_pair();
+            let d = cosine_hemisphere(n, u1, u2);
             assert!(d.dot(n) >= -1e-6);
             sum += d.dot(n) as f64;
         }
@@ -115,20 +139,22 @@ mod tests {
         }
         // Inside the cone: cos >= cos_max.
         let a = Vec3::new(0.3, -0.9, 0.1).normalize();
-        let mut r = Rng::new(4, Stream::Hmd, 2);
+        let mut r = Halton::new(4);
         for _ in 0..1000 {
-            let d = uniform_cone(a, 0.8, r.next_f32(), r.next_f32());
+            let (u1, u2) = r.next_pair();
+            let d = uniform_cone(a, 0.8, u1, u2);
             assert!(d.dot(a) >= 0.8 - 1e-5);
         }
     }
 
     #[test]
     fn sphere_samples_are_centred() {
-        let mut r = Rng::new(10, Stream::Particle, 0);
+        let mut r = Halton::new(10);
         let m = 50_000;
         let mut sum = Vec3::ZERO;
         for _ in 0..m {
-            let d = uniform_sphere(r.next_f32(), r.next_f32());
+            let (u1, u2) = r.next_pair();
+            let d = uniform_sphere(u1, u2);
             assert!((d.length() - 1.0).abs() < 1e-5);
             sum += d;
         }
