@@ -13,6 +13,7 @@ pub mod gather;
 pub mod grid;
 pub mod neumann;
 pub mod observer;
+pub mod output_check;
 pub mod params;
 pub mod pipeline;
 pub mod placement;
@@ -22,6 +23,7 @@ pub mod report;
 pub mod rng;
 pub mod sampling;
 pub mod shard;
+pub mod surface_samples;
 pub mod table1;
 pub mod transport;
 

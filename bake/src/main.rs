@@ -231,6 +231,11 @@ impl Observer for Reporter {
         }
     }
 
+    fn step(&self, done: u64, total: u64, detail: &str) {
+        self.progress(done, total);
+        self.line(detail);
+    }
+
     fn done(&self, name: &str, secs: f64, detail: &str) {
         if let Ok(mut b) = self.bar.lock() {
             if let Some(bar) = b.take() {
@@ -298,6 +303,7 @@ fn parse_shard(s: &str) -> Result<(u32, u32), String> {
 }
 
 fn run_merge(shards: &[PathBuf], output: &Path, compress: bool, quiet: bool) -> Result<()> {
+    mlt_bake::output_check::files([output])?;
     let mut contents = Vec::new();
     for s in shards {
         let f = BakedFile::open(s).with_context(|| format!("opening {}", s.display()))?;
@@ -345,6 +351,7 @@ fn run_bake(args: BakeArgs) -> Result<()> {
         .clone()
         .unwrap_or_else(|| "builtin:cornell".into());
     let output = args.output.clone().unwrap_or_else(|| default_output(&spec));
+    mlt_bake::output_check::files(std::iter::once(&output).chain(&args.stats_json))?;
     let mut builder = rayon::ThreadPoolBuilder::new();
     if let Some(t) = args.threads {
         anyhow::ensure!(t >= 1, "--threads must be at least 1");

@@ -39,8 +39,7 @@ pub fn load_gltf(path: &Path, scale: f32) -> Result<(Mesh, Vec<String>, u64), Sc
     let bytes = std::fs::read(path).map_err(|e| SceneError::io(path, e))?;
     let mut hasher = Xxh3::new();
     hasher.update(&bytes);
-    let gltf::Gltf { document, blob } =
-        gltf::Gltf::from_slice(&bytes).map_err(|e| err(e.to_string()))?;
+    let gltf::Gltf { document, blob } = parse(&bytes).map_err(err)?;
     let base = path.parent().unwrap_or(Path::new(""));
     let buffers = gltf::import_buffers(&document, Some(base), blob)
         .map_err(|e| err(format!("buffers: {e}")))?;
@@ -387,6 +386,50 @@ impl Loader<'_> {
 }
 
 /// Converts decoded glTF image data (sRGB-encoded base colour) to a linear texture.
+/// Parses and validates a glTF or GLB image, refusing first what the gltf crate would panic
+/// on: a GLB header length below the header's size, and a primitive attribute naming an
+/// accessor that does not exist (its validation indexes the POSITION accessor unchecked).
+fn parse(bytes: &[u8]) -> Result<gltf::Gltf, String> {
+    check_glb_length(bytes)?;
+    let gltf::Gltf { document, blob } =
+        gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| e.to_string())?;
+    let json = document.into_json();
+    let accessors = json.accessors.len();
+    for (m, mesh) in json.meshes.iter().enumerate() {
+        for (p, primitive) in mesh.primitives.iter().enumerate() {
+            if let Some(i) = primitive
+                .attributes
+                .values()
+                .find(|i| i.value() >= accessors)
+            {
+                return Err(format!(
+                    "meshes[{m}].primitives[{p}]: attribute accessor {} does not exist ({accessors} accessors)",
+                    i.value()
+                ));
+            }
+        }
+    }
+    let document = gltf::Document::from_json(json).map_err(|e| e.to_string())?;
+    Ok(gltf::Gltf { document, blob })
+}
+
+/// A binary glTF's header must state a length of at least the header's 12 bytes (the gltf
+/// crate subtracts them unchecked, which panics on a shorter one).
+fn check_glb_length(bytes: &[u8]) -> Result<(), String> {
+    match (bytes.get(..4), bytes.get(8..12)) {
+        (Some(b"glTF"), Some(len)) => {
+            let len = u32::from_le_bytes([len[0], len[1], len[2], len[3]]);
+            if len < 12 {
+                return Err(format!(
+                    "the GLB header states a length of {len} bytes, less than the header itself"
+                ));
+            }
+            Ok(())
+        }
+        _ => Ok(()),
+    }
+}
+
 fn texture_from_gltf_image(data: &gltf::image::Data) -> Result<Texture, String> {
     use gltf::image::Format as F;
     let (w, h) = (data.width, data.height);
@@ -639,6 +682,21 @@ mod tests {
         std::fs::write(&path, "{ not json").expect("write");
         let e = load_gltf(&path, 1.0).unwrap_err().to_string();
         assert!(e.contains("broken.gltf"), "{e}");
+        // A POSITION attribute naming a missing accessor.
+        let path = write_test_gltf(&dir);
+        let text = std::fs::read_to_string(&path).expect("read");
+        std::fs::write(
+            &path,
+            text.replace("\"POSITION\": 0, \"NORMAL\"", "\"POSITION\": 9, \"NORMAL\""),
+        )
+        .expect("write");
+        let e = load_gltf(&path, 1.0).unwrap_err().to_string();
+        assert!(e.contains("accessor 9 does not exist"), "{e}");
+        // A GLB header stating a length below its own 12 bytes.
+        let glb = dir.join("short.glb");
+        std::fs::write(&glb, b"glTF\x02\0\0\0\x04\0\0\0").expect("write");
+        let e = load_gltf(&glb, 1.0).unwrap_err().to_string();
+        assert!(e.contains("short.glb") && e.contains("length of 4"), "{e}");
         let _ = std::fs::remove_dir_all(&dir);
     }
 

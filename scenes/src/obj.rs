@@ -78,6 +78,13 @@ pub fn load_obj(path: &Path, scale: f32) -> Result<(Mesh, Vec<String>, u64), Sce
                 return empty();
             }
         };
+        if let Some(message) = short_colour_line(&mtl_bytes) {
+            mtl_outcomes.borrow_mut().push(MtlOutcome::Unparsable {
+                path: found,
+                message,
+            });
+            return empty();
+        }
         let result = tobj::load_mtl_buf(&mut Cursor::new(&mtl_bytes));
         match result {
             Ok(r) => {
@@ -373,6 +380,20 @@ fn append_models(
     Ok(())
 }
 
+/// The first colour statement (`Ka`, `Kd`, `Ks`, `Ke`) with fewer than three values, which
+/// tobj's MTL parser would panic on; such a file is refused instead, naming the line.
+fn short_colour_line(mtl: &[u8]) -> Option<String> {
+    mtl.split(|&b| b == b'\n')
+        .enumerate()
+        .find_map(|(i, line)| {
+            let line = String::from_utf8_lossy(line);
+            let mut words = line.split_whitespace();
+            let key = words.next()?;
+            (["Ka", "Kd", "Ks", "Ke"].contains(&key) && words.count() < 3)
+                .then(|| format!("line {}: {key} needs three numbers", i + 1))
+        })
+}
+
 fn parse_triple<'a>(mut words: impl Iterator<Item = &'a str>) -> Option<[f32; 3]> {
     let mut out = [0.0; 3];
     for o in &mut out {
@@ -565,6 +586,20 @@ mod tests {
         assert!(warnings.iter().any(|w| w.contains("nowhere.mtl")));
         // The zero normal is absent: shading normal falls back.
         assert_eq!(mesh.shading_normal(0, (0.3, 0.3)), None);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn a_colour_with_too_few_values_is_an_error_naming_the_mtl_and_line() {
+        let dir = temp_dir("shortkd");
+        write(&dir, "m.mtl", "newmtl a\nKd 0.5\n");
+        let obj = write(
+            &dir,
+            "t.obj",
+            "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl a\nf 1 2 3\n",
+        );
+        let e = load_obj(&obj, 1.0).unwrap_err().to_string();
+        assert!(e.contains("m.mtl") && e.contains("line 2: Kd"), "{e}");
         let _ = std::fs::remove_dir_all(&dir);
     }
 
