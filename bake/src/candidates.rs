@@ -18,9 +18,10 @@ use crate::sampling::{cosine_hemisphere, uniform_sphere};
 use crate::surface_samples::{side_key, SurfaceSampler};
 
 /// Candidates per particle below which the pool adds area samples. A closed scene gives
-/// `bounces - skipped` (27 by default) per particle, the built-in Cornell box with its open
-/// front about 2.7, the paper's Sponza with its open roof about 18; a box missing two walls
-/// gives about 0.45 and two quads about 0.01, too few for the finer levels ever to saturate.
+/// `bounces - skipped` (27 by default) per particle, and scenes with openings (a Cornell box
+/// without its front wall, a courtyard open to the sky) a few; where most particles escape
+/// after a bounce or two (two quads, a box missing two walls) they give well below one, too
+/// few for the finer levels ever to saturate.
 pub const MIN_DEPOSITS_PER_PARTICLE: f64 = 1.0;
 
 /// Fraction of particles reaching a surface below which the viewpoint is reported as
@@ -294,6 +295,43 @@ mod tests {
             // Normals face the inside, where the particles travel.
             assert!(c.normal.dot(c.position) < 0.0);
         }
+    }
+
+    #[test]
+    fn only_a_pool_whose_particles_escape_adds_area_samples() {
+        let closed = SphereCaster::new(Vec3::ZERO, 1.0, [0.5; 3]);
+        let mut pool = CandidatePool::new(&closed, Vec3::ZERO, 1, 30, 3);
+        pool.grow();
+        pool.grow();
+        assert!(!pool.samples_surfaces());
+        assert_eq!(pool.deposits, pool.candidates.len() as u64);
+        assert!(pool.notes().is_empty());
+
+        // A quad facing +Y, seen from below: every path escapes after its first hit.
+        let quad = mlt_scenes::MeshCaster::new(mlt_scenes::Mesh {
+            positions: vec![
+                Vec3::new(-1.0, 0.0, -1.0),
+                Vec3::new(-1.0, 0.0, 1.0),
+                Vec3::new(1.0, 0.0, 1.0),
+                Vec3::new(1.0, 0.0, -1.0),
+            ],
+            triangles: vec![[0, 1, 2], [0, 2, 3]],
+            triangle_material: vec![0, 0],
+            materials: vec![mlt_scenes::Material::plain("m", [0.5; 3])],
+            ..Default::default()
+        });
+        let mut pool = CandidatePool::new(&quad, Vec3::new(0.0, -0.5, 0.0), 1, 30, 3);
+        assert_eq!(pool.grow(), 0);
+        assert!(pool.samples_surfaces());
+        let added = pool.grow();
+        assert_eq!(added, pool.candidates.len());
+        assert_eq!(added as u64, pool.particles / 3 * 2 * 27);
+        assert_eq!(pool.surface_sides, 2);
+        for c in &pool.candidates {
+            assert_eq!(c.geometric_normal, -Vec3::Y);
+            assert!(c.position.y == 0.0 && c.position.x.abs() <= 1.0);
+        }
+        assert!(pool.notes().iter().any(|n| n.contains("looks open")));
     }
 
     #[test]

@@ -379,8 +379,12 @@ impl BakedFile {
             .map(|l| LevelInfo {
                 level: l as u32,
                 points: b.level_range(l).len() as u64,
-                disk_radius: b.disk_radii[l],
-                support_radius: b.level_range(l).next().map(|j| b.radii[j]).unwrap_or(0.0),
+                disk_radius: b.disk_radii.get(l).copied().unwrap_or(0.0),
+                support_radius: b
+                    .level_range(l)
+                    .next()
+                    .and_then(|j| b.radii.get(j).copied())
+                    .unwrap_or(0.0),
             })
             .collect();
         Ok(FileInfo {

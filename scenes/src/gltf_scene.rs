@@ -387,14 +387,21 @@ impl Loader<'_> {
 
 /// Converts decoded glTF image data (sRGB-encoded base colour) to a linear texture.
 /// Parses and validates a glTF or GLB image, refusing first what the gltf crate would panic
-/// on: a GLB header length below the header's size, and a primitive attribute naming an
-/// accessor that does not exist (its validation indexes the POSITION accessor unchecked).
+/// on: a GLB header length below the header's size, a primitive attribute naming an accessor
+/// that does not exist (its validation indexes the POSITION accessor unchecked), an accessor
+/// of count 0, and indices that are not unsigned integers.
 fn parse(bytes: &[u8]) -> Result<gltf::Gltf, String> {
+    use gltf::json::accessor::{ComponentType, GenericComponentType};
+    use gltf::json::validation::Checked::Valid;
+
     check_glb_length(bytes)?;
     let gltf::Gltf { document, blob } =
         gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| e.to_string())?;
     let json = document.into_json();
     let accessors = json.accessors.len();
+    if let Some(a) = json.accessors.iter().position(|a| a.count.0 == 0) {
+        return Err(format!("accessors[{a}]: count 0 (at least 1 is required)"));
+    }
     for (m, mesh) in json.meshes.iter().enumerate() {
         for (p, primitive) in mesh.primitives.iter().enumerate() {
             if let Some(i) = primitive
@@ -406,6 +413,20 @@ fn parse(bytes: &[u8]) -> Result<gltf::Gltf, String> {
                     "meshes[{m}].primitives[{p}]: attribute accessor {} does not exist ({accessors} accessors)",
                     i.value()
                 ));
+            }
+            let index_type = primitive
+                .indices
+                .and_then(|i| json.accessors.get(i.value()))
+                .map(|a| a.component_type);
+            if let Some(Valid(GenericComponentType(t))) = index_type {
+                if !matches!(
+                    t,
+                    ComponentType::U8 | ComponentType::U16 | ComponentType::U32
+                ) {
+                    return Err(format!(
+                        "meshes[{m}].primitives[{p}]: indices of component type {t:?} (unsigned integers are required)"
+                    ));
+                }
             }
         }
     }
