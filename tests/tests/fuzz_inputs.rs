@@ -435,10 +435,10 @@ fn gltf_json(buffer: &str) -> String {
 fn glb() -> Vec<u8> {
     let mut bin = gltf_buffer();
     let mut json = gltf_json(&format!(r#""byteLength": {}"#, bin.len())).into_bytes();
-    while json.len() % 4 != 0 {
+    while !json.len().is_multiple_of(4) {
         json.push(b' ');
     }
-    while bin.len() % 4 != 0 {
+    while !bin.len().is_multiple_of(4) {
         bin.push(0);
     }
     let total = 12 + 8 + json.len() + 8 + bin.len();
