@@ -17,4 +17,4 @@ mkdir -p "$out"
 out="$(cd "$out" && pwd)"
 MLT_FUZZ_COUNT="$count" MLT_FUZZ_SEED="$seed" MLT_FUZZ_OUT="$out" RUST_BACKTRACE=0 \
     cargo test -p mlt-tests --test fuzz_inputs -- --nocapture --test-threads 1 2>&1 |
-    grep -E '^fuzz |^test |input [0-9]+:|^test result'
+    grep --line-buffered -E '^fuzz |^test |input [0-9]+:|^test result'

@@ -387,51 +387,69 @@ impl Loader<'_> {
 
 /// Converts decoded glTF image data (sRGB-encoded base colour) to a linear texture.
 /// Parses and validates a glTF or GLB image, refusing first what the gltf crate would panic
-/// on: a GLB header length below the header's size, a primitive attribute naming an accessor
-/// that does not exist (its validation indexes the POSITION accessor unchecked), an accessor
-/// of count 0, and indices that are not unsigned integers.
+/// on (see [`check_accessors`] and [`check_glb_length`]).
 fn parse(bytes: &[u8]) -> Result<gltf::Gltf, String> {
-    use gltf::json::accessor::{ComponentType, GenericComponentType};
-    use gltf::json::validation::Checked::Valid;
-
     check_glb_length(bytes)?;
     let gltf::Gltf { document, blob } =
         gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| e.to_string())?;
     let json = document.into_json();
-    let accessors = json.accessors.len();
-    if let Some(a) = json.accessors.iter().position(|a| a.count.0 == 0) {
-        return Err(format!("accessors[{a}]: count 0 (at least 1 is required)"));
+    check_accessors(&json)?;
+    let document = gltf::Document::from_json(json).map_err(|e| e.to_string())?;
+    Ok(gltf::Gltf { document, blob })
+}
+
+/// What the gltf crate's validation and readers assume without checking: every accessor (and
+/// sparse part) holds at least one element, every primitive attribute names an existing
+/// accessor (validation indexes the POSITION accessor unchecked), and the accessors read here
+/// have the layout their readers assert: positions and normals VEC3 of floats, texture
+/// coordinates VEC2 of floats or normalised bytes or shorts, indices SCALAR unsigned integers.
+fn check_accessors(json: &gltf::json::Root) -> Result<(), String> {
+    use gltf::json::accessor::{ComponentType as C, GenericComponentType, Type};
+    use gltf::json::mesh::Semantic;
+    use gltf::json::validation::Checked::Valid;
+
+    for (a, acc) in json.accessors.iter().enumerate() {
+        if acc.count.0 == 0 || acc.sparse.as_ref().is_some_and(|s| s.count.0 == 0) {
+            return Err(format!("accessors[{a}]: count 0 (at least 1 is required)"));
+        }
     }
+    let layout = |i: usize, ty: Type, types: &[C]| {
+        json.accessors.get(i).is_some_and(|a| {
+            a.type_ == Valid(ty)
+                && matches!(a.component_type, Valid(GenericComponentType(c)) if types.contains(&c))
+        })
+    };
     for (m, mesh) in json.meshes.iter().enumerate() {
         for (p, primitive) in mesh.primitives.iter().enumerate() {
-            if let Some(i) = primitive
-                .attributes
-                .values()
-                .find(|i| i.value() >= accessors)
-            {
-                return Err(format!(
-                    "meshes[{m}].primitives[{p}]: attribute accessor {} does not exist ({accessors} accessors)",
-                    i.value()
-                ));
-            }
-            let index_type = primitive
-                .indices
-                .and_then(|i| json.accessors.get(i.value()))
-                .map(|a| a.component_type);
-            if let Some(Valid(GenericComponentType(t))) = index_type {
-                if !matches!(
-                    t,
-                    ComponentType::U8 | ComponentType::U16 | ComponentType::U32
-                ) {
-                    return Err(format!(
-                        "meshes[{m}].primitives[{p}]: indices of component type {t:?} (unsigned integers are required)"
+            let fail = |what: String| Err(format!("meshes[{m}].primitives[{p}]: {what}"));
+            for (semantic, i) in &primitive.attributes {
+                let i = i.value();
+                if i >= json.accessors.len() {
+                    return fail(format!("attribute accessor {i} does not exist"));
+                }
+                let ok = match semantic {
+                    Valid(Semantic::Positions | Semantic::Normals) => {
+                        layout(i, Type::Vec3, &[C::F32])
+                    }
+                    Valid(Semantic::TexCoords(_)) => {
+                        layout(i, Type::Vec2, &[C::F32, C::U8, C::U16])
+                    }
+                    _ => true,
+                };
+                if !ok {
+                    return fail(format!(
+                        "attribute {semantic:?} has an accessor of the wrong type"
                     ));
+                }
+            }
+            if let Some(i) = primitive.indices {
+                if !layout(i.value(), Type::Scalar, &[C::U8, C::U16, C::U32]) {
+                    return fail("indices must be SCALAR unsigned integers".into());
                 }
             }
         }
     }
-    let document = gltf::Document::from_json(json).map_err(|e| e.to_string())?;
-    Ok(gltf::Gltf { document, blob })
+    Ok(())
 }
 
 /// A binary glTF's header must state a length of at least the header's 12 bytes (the gltf
