@@ -166,6 +166,10 @@ pub fn run_batch(
         path: settings.out_dir.clone(),
         message: format!("cannot create the output directory: {e}"),
     })?;
+    crate::output_check::directory(&settings.out_dir).map_err(|e| BakeError::Batch {
+        path: e.path,
+        message: e.reason,
+    })?;
     let mut seen = std::collections::BTreeSet::new();
     for j in jobs {
         if !seen.insert(j.name.as_str()) {

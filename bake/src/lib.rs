@@ -15,6 +15,7 @@ pub mod gather;
 pub mod grid;
 pub mod neumann;
 pub mod observer;
+pub mod output_check;
 pub mod params;
 pub mod pipeline;
 pub mod placement;
@@ -23,6 +24,7 @@ pub mod refine;
 pub mod report;
 pub mod rng;
 pub mod shard;
+pub mod surface_samples;
 pub mod table1;
 pub mod transport;
 

@@ -7,6 +7,11 @@ pub trait Observer: Sync {
     fn stage(&self, _name: &str) {}
     /// Progress within the current stage.
     fn progress(&self, _done: u64, _total: u64) {}
+    /// A step of the current stage finished (a level of the Poisson-disk placement): `done`
+    /// of `total` steps, `detail` summarising it. Shown as progress unless overridden.
+    fn step(&self, done: u64, total: u64, _detail: &str) {
+        self.progress(done, total)
+    }
     /// A stage ended after `secs` seconds; `detail` summarises its result.
     fn done(&self, _name: &str, _secs: f64, _detail: &str) {}
     /// Something the user should know.

@@ -16,7 +16,7 @@ use crate::candidates::CandidatePool;
 use crate::error::BakeError;
 use crate::observer::Observer;
 use crate::params::{bounce_policy, manifest_options, resolve, resolve_transport, BakeOptions};
-use crate::placement::{find_coarse_radius, place, Coarse, LevelPlan};
+use crate::placement::{find_coarse_radius, level_line, place, Coarse, LevelPlan};
 use crate::poisson::DartSettings;
 use crate::rng::mix64;
 use crate::shard::{needed, owners, shard_section};
@@ -335,11 +335,15 @@ fn place_basis(
             c_fine: params.c_fine,
         },
         &settings,
-        |l, _| obs.progress(l as u64 + 1, levels as u64),
+        |l, s| obs.step(l as u64 + 1, levels as u64, &level_line(l, s)),
     );
     // Candidates are also generated lazily inside the dart thrower; count that time there.
     let candidates_s = pool.seconds;
     let poisson_s = t.elapsed().as_secs_f64() - (pool.seconds - first_batch_s);
+    for w in pool.notes() {
+        obs.warn(&w);
+        warnings.push(w);
+    }
     for &l in &placement.dry_levels {
         let w = format!(
             "level {l}: the candidate pool stopped growing before the level saturated; it may be sparser than its radius allows"

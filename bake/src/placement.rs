@@ -77,13 +77,21 @@ pub struct LevelPlan {
     pub c_fine: f32,
 }
 
-/// Places the levels of `plan`, calling `on_level(l, points)` after each.
+/// One line on a placed level, for progress reports.
+pub fn level_line(l: usize, s: &LevelStats) -> String {
+    format!(
+        "poisson disk level {l}: {} points, R = {:.5}, {} darts",
+        s.points, s.disk_radius, s.darts
+    )
+}
+
+/// Places the levels of `plan`, calling `on_level(l, stats)` after each.
 pub fn place(
     pool: &mut CandidatePool<'_>,
     caster: &dyn RayCaster,
     plan: LevelPlan,
     settings: &DartSettings,
-    mut on_level: impl FnMut(usize, usize),
+    mut on_level: impl FnMut(usize, &LevelStats),
 ) -> Placement {
     let LevelPlan {
         levels,
@@ -140,7 +148,9 @@ pub fn place(
                 0.0
             },
         });
-        on_level(l, points.len());
+        if let Some(s) = stats.last() {
+            on_level(l, s);
+        }
         r *= 0.5;
     }
     Placement {

@@ -2,8 +2,10 @@
 //! candidates are tried in a random order; one is accepted when no accepted point of the same
 //! level lies within `R` in the metric of Eq. 11 and its harmonic mean distance to the
 //! surrounding geometry (rays of length `hmd_range * R`) is at least `hmd_reject * R`. The
-//! level ends after `max_misses` consecutive rejections. Levels are independent: points of
-//! other levels do not take part in the test.
+//! level ends after `max_misses` consecutive rejections, or after [`MAX_FRUITLESS_GROWTHS`]
+//! growths of the candidate pool in a row with no dart accepted (a pool that grows by fewer
+//! than `max_misses` candidates at a time). Levels are independent: points of other levels do
+//! not take part in the test.
 
 use glam::Vec3;
 use mlt_format::kernel::poisson_distance;
@@ -13,6 +15,9 @@ use crate::candidates::{Candidate, CandidatePool};
 use crate::grid::Grid;
 use crate::rng::{Rng, Stream};
 use mlt_scenes::sampling::cosine_hemisphere;
+
+/// Pool growths in a row without an accepted dart after which a level counts as saturated.
+pub const MAX_FRUITLESS_GROWTHS: u32 = 8;
 
 /// Settings of the dart thrower.
 #[derive(Clone, Copy, Debug)]
@@ -54,9 +59,15 @@ pub fn throw_level(
     shuffler.shuffle(&mut order);
     let mut cursor = 0usize;
     let mut misses = 0u32;
+    let (mut fruitless, mut accepted) = (0u32, false);
     let eps = caster.ray_epsilon();
     loop {
         if cursor == order.len() {
+            fruitless = if accepted { 0 } else { fruitless + 1 };
+            accepted = false;
+            if fruitless > MAX_FRUITLESS_GROWTHS {
+                break;
+            }
             let before = pool.candidates.len();
             if pool.grow() == 0 {
                 res.ran_dry = true;
@@ -95,6 +106,7 @@ pub fn throw_level(
                 grid.insert(c.position, res.points.len() as u32);
                 res.points.push(c);
                 misses = 0;
+                accepted = true;
                 continue;
             }
         }

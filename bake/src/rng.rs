@@ -18,6 +18,7 @@ pub enum Stream {
     Shuffle = 2,
     Hmd = 3,
     Gather = 4,
+    Surface = 5,
 }
 
 /// SplitMix64 generator.

@@ -198,8 +198,10 @@ impl BakedFile {
         // change under us if another process writes to this very file while it is mapped;
         // our writers never do that (they write a temporary file and rename it over the old
         // one, which leaves existing mappings of the old inode intact). Every byte we read is
-        // bounds-checked against the header and checksummed before use, so a file modified
-        // between open and read gives an error, not undefined behaviour in our code.
+        // bounds-checked against the header and checksummed before use, so a file rewritten
+        // in place between open and read gives an error, not undefined behaviour in our code.
+        // A file truncated in place is different: reading a mapped page past its new end
+        // raises SIGBUS, which ends the process (no writer here truncates in place).
         let map = unsafe { Mmap::map(&file) }.map_err(|source| FormatError::Io {
             path: path.to_path_buf(),
             source,
@@ -413,8 +415,12 @@ impl BakedFile {
             .map(|l| LevelInfo {
                 level: l as u32,
                 points: b.level_range(l).len() as u64,
-                disk_radius: b.disk_radii[l],
-                support_radius: b.level_range(l).next().map(|j| b.radii[j]).unwrap_or(0.0),
+                disk_radius: b.disk_radii.get(l).copied().unwrap_or(0.0),
+                support_radius: b
+                    .level_range(l)
+                    .next()
+                    .and_then(|j| b.radii.get(j).copied())
+                    .unwrap_or(0.0),
             })
             .collect();
         Ok(FileInfo {

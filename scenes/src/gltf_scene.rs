@@ -39,8 +39,7 @@ pub fn load_gltf(path: &Path, scale: f32) -> Result<(Mesh, Vec<String>, u64), Sc
     let bytes = std::fs::read(path).map_err(|e| SceneError::io(path, e))?;
     let mut hasher = Xxh3::new();
     hasher.update(&bytes);
-    let gltf::Gltf { document, blob } =
-        gltf::Gltf::from_slice(&bytes).map_err(|e| err(e.to_string()))?;
+    let gltf::Gltf { document, blob } = parse(&bytes).map_err(err)?;
     let base = path.parent().unwrap_or(Path::new(""));
     let buffers = gltf::import_buffers(&document, Some(base), blob)
         .map_err(|e| err(format!("buffers: {e}")))?;
@@ -387,6 +386,89 @@ impl Loader<'_> {
 }
 
 /// Converts decoded glTF image data (sRGB-encoded base colour) to a linear texture.
+/// Parses and validates a glTF or GLB image, refusing first what the gltf crate would panic
+/// on (see [`check_accessors`] and [`check_glb_length`]).
+fn parse(bytes: &[u8]) -> Result<gltf::Gltf, String> {
+    check_glb_length(bytes)?;
+    let gltf::Gltf { document, blob } =
+        gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| e.to_string())?;
+    let json = document.into_json();
+    check_accessors(&json)?;
+    let document = gltf::Document::from_json(json).map_err(|e| e.to_string())?;
+    Ok(gltf::Gltf { document, blob })
+}
+
+/// What the gltf crate's validation and readers assume without checking: every accessor (and
+/// sparse part) holds at least one element, every primitive attribute names an existing
+/// accessor (validation indexes the POSITION accessor unchecked), and the accessors read here
+/// have the layout their readers assert: positions and normals VEC3 of floats, texture
+/// coordinates VEC2 of floats or normalised bytes or shorts, indices SCALAR unsigned integers.
+fn check_accessors(json: &gltf::json::Root) -> Result<(), String> {
+    use gltf::json::accessor::{ComponentType as C, GenericComponentType, Type};
+    use gltf::json::mesh::Semantic;
+    use gltf::json::validation::Checked::Valid;
+
+    for (a, acc) in json.accessors.iter().enumerate() {
+        if acc.count.0 == 0 || acc.sparse.as_ref().is_some_and(|s| s.count.0 == 0) {
+            return Err(format!("accessors[{a}]: count 0 (at least 1 is required)"));
+        }
+    }
+    let layout = |i: usize, ty: Type, types: &[C]| {
+        json.accessors.get(i).is_some_and(|a| {
+            a.type_ == Valid(ty)
+                && matches!(a.component_type, Valid(GenericComponentType(c)) if types.contains(&c))
+        })
+    };
+    for (m, mesh) in json.meshes.iter().enumerate() {
+        for (p, primitive) in mesh.primitives.iter().enumerate() {
+            let fail = |what: String| Err(format!("meshes[{m}].primitives[{p}]: {what}"));
+            for (semantic, i) in &primitive.attributes {
+                let i = i.value();
+                if i >= json.accessors.len() {
+                    return fail(format!("attribute accessor {i} does not exist"));
+                }
+                let ok = match semantic {
+                    Valid(Semantic::Positions | Semantic::Normals) => {
+                        layout(i, Type::Vec3, &[C::F32])
+                    }
+                    Valid(Semantic::TexCoords(_)) => {
+                        layout(i, Type::Vec2, &[C::F32, C::U8, C::U16])
+                    }
+                    _ => true,
+                };
+                if !ok {
+                    return fail(format!(
+                        "attribute {semantic:?} has an accessor of the wrong type"
+                    ));
+                }
+            }
+            if let Some(i) = primitive.indices {
+                if !layout(i.value(), Type::Scalar, &[C::U8, C::U16, C::U32]) {
+                    return fail("indices must be SCALAR unsigned integers".into());
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// A binary glTF's header must state a length of at least the header's 12 bytes (the gltf
+/// crate subtracts them unchecked, which panics on a shorter one).
+fn check_glb_length(bytes: &[u8]) -> Result<(), String> {
+    match (bytes.get(..4), bytes.get(8..12)) {
+        (Some(b"glTF"), Some(len)) => {
+            let len = u32::from_le_bytes([len[0], len[1], len[2], len[3]]);
+            if len < 12 {
+                return Err(format!(
+                    "the GLB header states a length of {len} bytes, less than the header itself"
+                ));
+            }
+            Ok(())
+        }
+        _ => Ok(()),
+    }
+}
+
 fn texture_from_gltf_image(data: &gltf::image::Data) -> Result<Texture, String> {
     use gltf::image::Format as F;
     let (w, h) = (data.width, data.height);
@@ -632,6 +714,21 @@ mod tests {
         std::fs::write(&path, "{ not json").expect("write");
         let e = load_gltf(&path, 1.0).unwrap_err().to_string();
         assert!(e.contains("broken.gltf"), "{e}");
+        // A POSITION attribute naming a missing accessor.
+        let path = write_test_gltf(&dir);
+        let text = std::fs::read_to_string(&path).expect("read");
+        std::fs::write(
+            &path,
+            text.replace("\"POSITION\": 0, \"NORMAL\"", "\"POSITION\": 9, \"NORMAL\""),
+        )
+        .expect("write");
+        let e = load_gltf(&path, 1.0).unwrap_err().to_string();
+        assert!(e.contains("accessor 9 does not exist"), "{e}");
+        // A GLB header stating a length below its own 12 bytes.
+        let glb = dir.join("short.glb");
+        std::fs::write(&glb, b"glTF\x02\0\0\0\x04\0\0\0").expect("write");
+        let e = load_gltf(&glb, 1.0).unwrap_err().to_string();
+        assert!(e.contains("short.glb") && e.contains("length of 4"), "{e}");
     }
 
     #[test]

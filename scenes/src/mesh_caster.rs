@@ -185,6 +185,10 @@ impl RayCaster for MeshCaster {
     fn bounds(&self) -> (Vec3, Vec3) {
         self.bounds
     }
+
+    fn triangle_mesh(&self) -> Option<&Mesh> {
+        Some(&self.mesh)
+    }
 }
 
 #[cfg(test)]

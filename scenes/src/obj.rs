@@ -59,6 +59,12 @@ pub fn load_obj(path: &Path, scale: f32) -> Result<(Mesh, Vec<String>, u64), Sce
         ..Default::default()
     };
     let mtl_outcomes: RefCell<Vec<MtlOutcome>> = RefCell::new(Vec::new());
+    if let Some(message) = index_out_of_range(&bytes) {
+        return Err(SceneError::Obj {
+            path: path.to_path_buf(),
+            message,
+        });
+    }
     let parsed = tobj::load_obj_buf(&mut Cursor::new(&bytes), &options, |mtl_ref| {
         let wanted = join_reference(&dir, &mtl_ref.to_string_lossy());
         let empty = || Ok((Vec::new(), Default::default()));
@@ -78,6 +84,13 @@ pub fn load_obj(path: &Path, scale: f32) -> Result<(Mesh, Vec<String>, u64), Sce
                 return empty();
             }
         };
+        if let Some(message) = short_colour_line(&mtl_bytes) {
+            mtl_outcomes.borrow_mut().push(MtlOutcome::Unparsable {
+                path: found,
+                message,
+            });
+            return empty();
+        }
         let result = tobj::load_mtl_buf(&mut Cursor::new(&mtl_bytes));
         match result {
             Ok(r) => {
@@ -373,6 +386,57 @@ fn append_models(
     Ok(())
 }
 
+/// The first face, line or point index out of range in a way tobj does not check: a positive
+/// one beyond the file's line count (every vertex takes a line, so no valid index is), or a
+/// negative (relative) one reaching before the first vertex, normal or texture coordinate.
+/// tobj multiplies such indices unchecked, which overflows.
+fn index_out_of_range(text: &[u8]) -> Option<String> {
+    let lines = text.split(|&b| b == b'\n').count() as u64;
+    // Statements seen so far: v, vt, vn (the slots of a face vertex `v/vt/vn`).
+    let mut seen = [0u64; 3];
+    for (i, line) in text.split(|&b| b == b'\n').enumerate() {
+        let line = String::from_utf8_lossy(line);
+        let mut words = line.split_whitespace();
+        match words.next() {
+            Some("v") => seen[0] += 1,
+            Some("vt") => seen[1] += 1,
+            Some("vn") => seen[2] += 1,
+            Some("f" | "l" | "p") => {
+                for w in words {
+                    for (slot, k) in w.split('/').enumerate().take(3) {
+                        let Ok(k) = k.parse::<i64>() else {
+                            continue;
+                        };
+                        let out = match k < 0 {
+                            true => k.unsigned_abs() > seen[slot],
+                            false => k as u64 > lines,
+                        };
+                        if out {
+                            return Some(format!("line {}: index {k} is out of range", i + 1));
+                        }
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    None
+}
+
+/// The first colour statement (`Ka`, `Kd`, `Ks`, `Ke`) with fewer than three values, which
+/// tobj's MTL parser would panic on; such a file is refused instead, naming the line.
+fn short_colour_line(mtl: &[u8]) -> Option<String> {
+    mtl.split(|&b| b == b'\n')
+        .enumerate()
+        .find_map(|(i, line)| {
+            let line = String::from_utf8_lossy(line);
+            let mut words = line.split_whitespace();
+            let key = words.next()?;
+            (["Ka", "Kd", "Ks", "Ke"].contains(&key) && words.count() < 3)
+                .then(|| format!("line {}: {key} needs three numbers", i + 1))
+        })
+}
+
 fn parse_triple<'a>(mut words: impl Iterator<Item = &'a str>) -> Option<[f32; 3]> {
     let mut out = [0.0; 3];
     for o in &mut out {
@@ -564,6 +628,40 @@ mod tests {
         assert!(warnings.iter().any(|w| w.contains("nowhere.mtl")));
         // The zero normal is absent: shading normal falls back.
         assert_eq!(mesh.shading_normal(0, (0.3, 0.3)), None);
+    }
+
+    #[test]
+    fn a_colour_with_too_few_values_is_an_error_naming_the_mtl_and_line() {
+        let dir = temp_dir("shortkd");
+        write(&dir, "m.mtl", "newmtl a\nKd 0.5\n");
+        let obj = write(
+            &dir,
+            "t.obj",
+            "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl a\nf 1 2 3\n",
+        );
+        let e = load_obj(&obj, 1.0).unwrap_err().to_string();
+        assert!(e.contains("m.mtl") && e.contains("line 2: Kd"), "{e}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn a_huge_face_index_is_an_error_naming_the_line() {
+        let dir = temp_dir("hugeidx");
+        let obj = write(
+            &dir,
+            "t.obj",
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/4611686018427387904 2 3\n",
+        );
+        let e = load_obj(&obj, 1.0).unwrap_err().to_string();
+        assert!(e.contains("t.obj") && e.contains("line 5: index"), "{e}");
+        let obj = write(
+            &dir,
+            "n.obj",
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nf 1//-1 2//-1 3//-2\n",
+        );
+        let e = load_obj(&obj, 1.0).unwrap_err().to_string();
+        assert!(e.contains("line 5: index -2 is out of range"), "{e}");
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

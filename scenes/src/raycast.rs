@@ -34,6 +34,12 @@ pub trait RayCaster: Sync + Send {
     /// Axis-aligned bounds of the geometry: (min, max).
     fn bounds(&self) -> (Vec3, Vec3);
 
+    /// The triangle mesh cast against (its triangle indices are [`Hit::prim_id`]); `None` for
+    /// analytic geometry.
+    fn triangle_mesh(&self) -> Option<&crate::Mesh> {
+        None
+    }
+
     /// A distance, relative to the scene's size and coordinate magnitude, by which secondary
     /// rays are offset from the surface they leave. Never an absolute constant in scene units.
     fn ray_epsilon(&self) -> f32 {

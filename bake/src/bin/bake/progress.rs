@@ -68,6 +68,11 @@ impl Observer for Reporter {
         }
     }
 
+    fn step(&self, done: u64, total: u64, detail: &str) {
+        self.progress(done, total);
+        self.line(detail);
+    }
+
     fn done(&self, name: &str, secs: f64, detail: &str) {
         if let Ok(mut b) = self.bar.lock() {
             if let Some(bar) = b.take() {

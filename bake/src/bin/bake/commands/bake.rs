@@ -19,6 +19,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
         .clone()
         .unwrap_or_else(|| "builtin:cornell".into());
     let output = args.output.clone().unwrap_or_else(|| default_output(&spec));
+    mlt_bake::output_check::files(std::iter::once(&output).chain(&args.stats_json))?;
     let mut builder = rayon::ThreadPoolBuilder::new();
     if let Some(t) = args.threads {
         anyhow::ensure!(t >= 1, "--threads must be at least 1");

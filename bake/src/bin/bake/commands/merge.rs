@@ -14,6 +14,7 @@ pub fn run(args: &MergeArgs) -> Result<()> {
         compress,
         quiet,
     } = args;
+    mlt_bake::output_check::files([output])?;
     let mut contents = Vec::new();
     for s in shards {
         let f = BakedFile::open(s).with_context(|| format!("opening {}", s.display()))?;
