@@ -3,7 +3,9 @@
 //! 1. direct irradiance at the sender points from the light, visibility averaged over several
 //!    jittered shadow rays per point (as the tech report, against binary flicker): the rays
 //!    leave the sender point and end at points spread around the light, over a disk facing the
-//!    point of radius half the sender level's disk radius (at most a quarter of the distance),
+//!    point of radius half the sender level's disk radius (at most a quarter of the distance,
+//!    and at most half the light's distance to the surfaces near it, which the rays must not
+//!    pass behind),
 //!    so that visibility is averaged over about the sender's footprint. (Jittering the start
 //!    points over the tangent plane instead leaves curved surfaces and shadows them.) Half of
 //!    the rays, spread over the disk, go first; where they all agree the point is taken as
@@ -37,7 +39,7 @@ use crate::light::Light;
 use crate::pull_push_op::PullPushOp;
 use crate::receiver_links::ReceiverLinks;
 use crate::relight::{Frame, Relight, StageTimes};
-use crate::support_average::{near_weight, SupportAverage};
+use crate::support_average::{near_weight, SupportAverage, NEAR_NONE};
 
 /// What building the relighter's operators cost, once per loaded file.
 #[derive(Clone, Copy, Debug, Default, Serialize)]
@@ -182,6 +184,7 @@ impl<'a> CpuRelighter<'a> {
     pub fn direct_counted(&self, light: &Light) -> (Vec<f32>, u64, u64) {
         let b = &self.ib.basis;
         let senders = b.level_offsets[self.sender_levels] as usize;
+        let clearance = self.clearance(light);
         let per_point: Vec<([f32; 3], u32, bool)> = (0..senders)
             .into_par_iter()
             .map(|j| {
@@ -203,7 +206,7 @@ impl<'a> CpuRelighter<'a> {
                 if e == [0.0; 3] {
                     return (e, 0, near > 0.0);
                 }
-                let (v, rays) = self.visibility(j, light);
+                let (v, rays) = self.visibility(j, light, clearance);
                 ([e[0] * v, e[1] * v, e[2] * v], rays, near > 0.0)
             })
             .collect();
@@ -216,9 +219,30 @@ impl<'a> CpuRelighter<'a> {
         )
     }
 
+    /// How far the light is from the surfaces near it: the least height of the light over the
+    /// tangent plane of a sender point whose support it is within [`NEAR_NONE`] radii of
+    /// (infinite when there is none). The order of the minimum does not change it.
+    fn clearance(&self, light: &Light) -> f32 {
+        let b = &self.ib.basis;
+        let senders = b.level_offsets[self.sender_levels] as usize;
+        (0..senders)
+            .into_par_iter()
+            .map(|j| {
+                let d = light.position - Vec3::from(b.positions[j]);
+                let h = d.dot(Vec3::from(b.normals[j]));
+                if h > 0.0 && d.length_squared() < (NEAR_NONE * b.radii[j]).powi(2) {
+                    h
+                } else {
+                    f32::INFINITY
+                }
+            })
+            .reduce(|| f32::INFINITY, f32::min)
+    }
+
     /// The fraction of shadow rays from sender point `j` that reach the light, and the number
-    /// of rays cast.
-    fn visibility(&self, j: usize, light: &Light) -> (f32, u32) {
+    /// of rays cast. The rays end on a disk around the light whose radius is at most half the
+    /// light's `clearance` from the surfaces near it, so that they never end behind them.
+    fn visibility(&self, j: usize, light: &Light, clearance: f32) -> (f32, u32) {
         let b = &self.ib.basis;
         let eps = self.caster.ray_epsilon();
         let k = self.shadow_rays;
@@ -228,7 +252,9 @@ impl<'a> CpuRelighter<'a> {
         // fixed pattern turned per point.
         let to_light = light.position - x;
         let dist = to_light.length();
-        let radius = (0.5 * b.disk_radii[b.level_of(j)]).min(0.25 * dist);
+        let radius = (0.5 * b.disk_radii[b.level_of(j)])
+            .min(0.25 * dist)
+            .min(0.5 * clearance);
         let (t, bt) = (to_light / dist.max(f32::MIN_POSITIVE)).any_orthonormal_pair();
         let origin = x + n * eps;
         let turn = (j as u32).wrapping_mul(0x9E37_79B9) as f32 / 4_294_967_296.0;

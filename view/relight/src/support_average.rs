@@ -19,7 +19,9 @@
 //! `rho + h` (fine under the light, coarse far from it), over the radii and, when the foot
 //! lies outside the support, the angles that the support covers; each ring sector takes the
 //! value of `B_j` (and of a spot's cone) at its middle. `int B_j dA` is a fixed quadrature
-//! over the support disk, computed once per point.
+//! over the support disk, computed once per point. Both integrals leave out the parts of the
+//! tangent plane that no function of the finest level reaches (beyond the edge of a wall),
+//! since a function carries light only where it lies on a surface.
 //!
 //! Visibility is not part of this average: the caller multiplies by the shadow rays' mean.
 
@@ -73,7 +75,8 @@ impl<'a> SupportAverage<'a> {
     }
 
     /// The value at `x` of point `j`'s normalised basis function on its tangent plane (whose
-    /// normal `n` is the point's): `w_j / sum_k w_k` over `j`'s level (Eq. 2).
+    /// normal `n` is the point's): `w_j / sum_k w_k` over `j`'s level (Eq. 2); 0 where no
+    /// function of the finest level reaches, which is off the surface.
     fn basis_value(&self, j: usize, level: usize, x: Vec3, n: Vec3) -> f32 {
         let b = &self.ib.basis;
         let (xa, na) = (x.to_array(), n.to_array());
@@ -82,7 +85,9 @@ impl<'a> SupportAverage<'a> {
             return 0.0;
         }
         let sum = self.ib.weight_sum(level, xa, na);
-        if sum > MIN_WEIGHT_SUM {
+        // Off the surface (beyond an edge of a wall, say) the function carries no light.
+        let finest = self.ib.levels() - 1;
+        if sum > MIN_WEIGHT_SUM && self.ib.weight_sum(finest, xa, na) > MIN_WEIGHT_SUM {
             w / sum
         } else {
             0.0
