@@ -86,7 +86,8 @@ pub struct CpuRelighter<'a> {
     /// (step 1; on with 4 or more rays).
     pub adaptive_shadows: bool,
     /// Near the light, average the irradiance over each sender's basis function instead of
-    /// sampling it at the point (step 1).
+    /// sampling it at the point, and keep the shadow rays' ends in front of the surfaces near
+    /// the light (step 1). Off, the samples are the irradiance at the points.
     pub support_average: bool,
     /// When false and the precomputed operator exists, step 4 is left to the caller (the
     /// renderer's GPU compute pass applies [`CpuRelighter::flatten_op`] to `Frame::i`), and
@@ -184,7 +185,11 @@ impl<'a> CpuRelighter<'a> {
     pub fn direct_counted(&self, light: &Light) -> (Vec<f32>, u64, u64) {
         let b = &self.ib.basis;
         let senders = b.level_offsets[self.sender_levels] as usize;
-        let clearance = self.clearance(light);
+        let clearance = if self.support_average {
+            self.clearance(light)
+        } else {
+            f32::INFINITY
+        };
         let per_point: Vec<([f32; 3], u32, bool)> = (0..senders)
             .into_par_iter()
             .map(|j| {
