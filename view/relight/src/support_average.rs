@@ -18,10 +18,11 @@
 //! `dphi`, exactly, however narrow the hot spot. The rings are spaced geometrically in
 //! `rho + h` (fine under the light, coarse far from it), over the radii and, when the foot
 //! lies outside the support, the angles that the support covers; each ring sector takes the
-//! value of `B_j` (and of a spot's cone) at its middle. `int B_j dA` is a fixed quadrature
-//! over the support disk, computed once per point. Both integrals leave out the parts of the
-//! tangent plane that no function of the finest level reaches (beyond the edge of a wall),
-//! since a function carries light only where it lies on a surface.
+//! value of `B_j` (and of a spot's cone) at its middle. `B_j` is tabulated once per point on a
+//! grid over its support (interpolated bilinearly), and `int B_j dA` is the table's sum, so a
+//! frame needs no R-tree query. The table is zero where no function of the finest level
+//! reaches (beyond the edge of a wall), since a function carries light only where it lies on
+//! a surface.
 //!
 //! Visibility is not part of this average: the caller multiplies by the shadow rays' mean.
 
@@ -43,9 +44,8 @@ pub const NEAR_NONE: f32 = 3.0;
 /// Rings and sectors of the flux quadrature around the foot of the light.
 const RINGS: usize = 16;
 const SECTORS: usize = 8;
-/// Rings (of equal area) and sectors of the area quadrature over the support disk.
-const AREA_RINGS: usize = 8;
-const AREA_SECTORS: usize = 12;
+/// Cells per side of the table of a basis function over its support square.
+const GRID: usize = 16;
 
 /// The weight of the support average against the point sample for a light at distance
 /// `dist` from a point of support radius `r`: 1 within [`NEAR_FULL`] radii, 0 beyond
@@ -57,11 +57,19 @@ pub fn near_weight(dist: f32, r: f32) -> f32 {
     ((NEAR_NONE - dist / r) / (NEAR_NONE - NEAR_FULL)).clamp(0.0, 1.0)
 }
 
-/// Support averages of the direct light over the basis functions of an [`IndexedBasis`],
-/// with each function's area computed on first use (the same value for any thread order).
+/// Support averages of the direct light over the basis functions of an [`IndexedBasis`].
+/// Each function is tabulated over its support on first use (the same values for any thread
+/// order), so that a frame needs no R-tree query.
 pub struct SupportAverage<'a> {
     ib: &'a IndexedBasis,
-    areas: Vec<OnceLock<f32>>,
+    tables: Vec<OnceLock<Table>>,
+}
+
+/// A basis function `B_j` on its tangent plane: values at the centres of a `GRID x GRID`
+/// grid over the square `[-r_j, r_j]^2` (in the point's tangent frame), and its integral.
+struct Table {
+    values: Box<[f32]>,
+    area: f32,
 }
 
 impl<'a> SupportAverage<'a> {
@@ -70,8 +78,14 @@ impl<'a> SupportAverage<'a> {
         let points = points.min(ib.basis.len());
         SupportAverage {
             ib,
-            areas: (0..points).map(|_| OnceLock::new()).collect(),
+            tables: (0..points).map(|_| OnceLock::new()).collect(),
         }
+    }
+
+    /// Heap bytes of the tables built so far.
+    pub fn bytes(&self) -> usize {
+        let built = self.tables.iter().filter(|t| t.get().is_some()).count();
+        self.tables.len() * std::mem::size_of::<OnceLock<Table>>() + built * GRID * GRID * 4
     }
 
     /// The value at `x` of point `j`'s normalised basis function on its tangent plane (whose
@@ -94,27 +108,35 @@ impl<'a> SupportAverage<'a> {
         }
     }
 
-    /// `int B_j dA` over point `j`'s tangent plane.
-    pub fn area(&self, j: usize) -> f32 {
-        *self.areas[j].get_or_init(|| {
+    /// Point `j`'s table, built on first use.
+    fn table(&self, j: usize) -> &Table {
+        self.tables[j].get_or_init(|| {
             let b = &self.ib.basis;
             let (p, n) = (Vec3::from(b.positions[j]), Vec3::from(b.normals[j]));
             let (r, level) = (b.radii[j], b.level_of(j));
             let (t, bt) = n.any_orthonormal_pair();
+            let cell = 2.0 * r / GRID as f32;
+            let centre = |i: usize| -r + (i as f32 + 0.5) * cell;
+            let mut values = vec![0.0f32; GRID * GRID];
             let mut sum = 0.0f64;
-            for a in 0..AREA_RINGS {
-                let rho = r * ((a as f32 + 0.5) / AREA_RINGS as f32).sqrt();
-                let turn = if a % 2 == 0 { 0.5 } else { 0.0 };
-                for k in 0..AREA_SECTORS {
-                    let phi = TAU as f32 * (k as f32 + turn) / AREA_SECTORS as f32;
-                    let x = p + (t * phi.cos() + bt * phi.sin()) * rho;
-                    sum += f64::from(self.basis_value(j, level, x, n));
+            for iv in 0..GRID {
+                for iu in 0..GRID {
+                    let x = p + t * centre(iu) + bt * centre(iv);
+                    let v = self.basis_value(j, level, x, n);
+                    values[iv * GRID + iu] = v;
+                    sum += f64::from(v);
                 }
             }
-            let cell = std::f64::consts::PI * f64::from(r) * f64::from(r)
-                / (AREA_RINGS * AREA_SECTORS) as f64;
-            (sum * cell) as f32
+            Table {
+                values: values.into_boxed_slice(),
+                area: (sum * f64::from(cell) * f64::from(cell)) as f32,
+            }
         })
+    }
+
+    /// `int B_j dA` over point `j`'s tangent plane (on the surface).
+    pub fn area(&self, j: usize) -> f32 {
+        self.table(j).area
     }
 
     /// `int B_j E dA` over point `j`'s tangent plane: the unoccluded flux of `light` that the
@@ -122,7 +144,7 @@ impl<'a> SupportAverage<'a> {
     pub fn flux(&self, j: usize, light: &Light) -> [f32; 3] {
         let b = &self.ib.basis;
         let (p, n) = (Vec3::from(b.positions[j]), Vec3::from(b.normals[j]));
-        let (r, level) = (b.radii[j], b.level_of(j));
+        let r = b.radii[j];
         let height = (light.position - p).dot(n);
         if !(height > 0.0 && r > 0.0) {
             return [0.0; 3];
@@ -149,6 +171,9 @@ impl<'a> SupportAverage<'a> {
         // The radius at which the cosine of the angle from the normal is `c`.
         let radius_of = |c: f64| (h * (1.0 / (c * c) - 1.0).max(0.0).sqrt()) as f32;
         let sector = span / SECTORS as f64;
+        let table = self.table(j);
+        let cell = 2.0 * r / GRID as f32;
+        let foot_uv = (-to_p.dot(t), -to_p.dot(bt));
         let mut acc = 0.0f64;
         for a in 0..RINGS {
             let (ca, cb) = (
@@ -165,12 +190,20 @@ impl<'a> SupportAverage<'a> {
                 0.5 * (a % 2) as f64
             };
             for k in 0..SECTORS {
-                let phi = phi0 + sector * (k as f64 + turn);
-                let x = foot + in_plane(t, bt, phi) * rho;
-                let v = self.basis_value(j, level, x, n);
-                if v > 0.0 {
-                    let cone = cone_average(light, foot, (t, bt), phi, sector, (ca, cb), radius_of);
-                    acc += f64::from(v * cone) * solid_angle;
+                let phi = (phi0 + sector * (k as f64 + turn)) as f32;
+                let (u, v) = (foot_uv.0 + rho * phi.cos(), foot_uv.1 + rho * phi.sin());
+                let value = bilinear(&table.values, (u + r) / cell - 0.5, (v + r) / cell - 0.5);
+                if value > 0.0 {
+                    let cone = cone_average(
+                        light,
+                        foot,
+                        (t, bt),
+                        f64::from(phi),
+                        sector,
+                        (ca, cb),
+                        radius_of,
+                    );
+                    acc += f64::from(value * cone) * solid_angle;
                 }
             }
         }
@@ -186,6 +219,22 @@ impl<'a> SupportAverage<'a> {
         }
         self.flux(j, light).map(|f| f / area)
     }
+}
+
+/// Bilinear interpolation of a `GRID x GRID` table at the fractional cell-centre indices
+/// `(fu, fv)`; 0 outside the table.
+fn bilinear(values: &[f32], fu: f32, fv: f32) -> f32 {
+    let (u0, v0) = (fu.floor(), fv.floor());
+    let (du, dv) = (fu - u0, fv - v0);
+    let at = |iu: f32, iv: f32| {
+        if iu < 0.0 || iv < 0.0 || iu >= GRID as f32 || iv >= GRID as f32 {
+            0.0
+        } else {
+            values[iv as usize * GRID + iu as usize]
+        }
+    };
+    (1.0 - dv) * ((1.0 - du) * at(u0, v0) + du * at(u0 + 1.0, v0))
+        + dv * ((1.0 - du) * at(u0, v0 + 1.0) + du * at(u0 + 1.0, v0 + 1.0))
 }
 
 /// The unit vector at angle `phi` in the plane spanned by `t` and `bt`.
