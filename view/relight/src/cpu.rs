@@ -177,12 +177,18 @@ impl<'a> CpuRelighter<'a> {
     /// Direct irradiance at every sender point (step 1); zero, without rays, at the points
     /// whose sample the pull-push does not use.
     pub fn direct(&self, light: &Light) -> Vec<f32> {
-        self.direct_counted(light).0
+        self.direct_stats(light).0
+    }
+
+    /// [`CpuRelighter::direct`] and the number of shadow rays it cast.
+    pub fn direct_counted(&self, light: &Light) -> (Vec<f32>, u64) {
+        let (e, rays, _) = self.direct_stats(light);
+        (e, rays)
     }
 
     /// [`CpuRelighter::direct`], the number of shadow rays it cast and the number of points
     /// whose sample is (partly) a support average.
-    pub fn direct_counted(&self, light: &Light) -> (Vec<f32>, u64, u64) {
+    pub fn direct_stats(&self, light: &Light) -> (Vec<f32>, u64, u64) {
         let b = &self.ib.basis;
         let senders = b.level_offsets[self.sender_levels] as usize;
         let clearance = if self.support_average {
@@ -310,7 +316,7 @@ impl Relight for CpuRelighter<'_> {
         }
         let mut times = StageTimes::default();
         let t = Instant::now();
-        let (mut e, shadow_rays, averaged_points) = self.direct_counted(light);
+        let (mut e, shadow_rays, averaged_points) = self.direct_stats(light);
         times.direct_ms = t.elapsed().as_secs_f64() * 1e3;
 
         let t = Instant::now();

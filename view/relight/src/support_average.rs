@@ -51,7 +51,8 @@ const GRID: usize = 16;
 /// `dist` from a point of support radius `r`: 1 within [`NEAR_FULL`] radii, 0 beyond
 /// [`NEAR_NONE`].
 pub fn near_weight(dist: f32, r: f32) -> f32 {
-    if !(r > 0.0) {
+    // Also for a NaN radius.
+    if r.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return 0.0;
     }
     ((NEAR_NONE - dist / r) / (NEAR_NONE - NEAR_FULL)).clamp(0.0, 1.0)
@@ -214,7 +215,7 @@ impl<'a> SupportAverage<'a> {
     /// The support average `int B_j E dA / int B_j dA` of the unoccluded irradiance, RGB.
     pub fn irradiance(&self, j: usize, light: &Light) -> [f32; 3] {
         let area = self.area(j);
-        if !(area > 0.0) {
+        if area.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
             return [0.0; 3];
         }
         self.flux(j, light).map(|f| f / area)
