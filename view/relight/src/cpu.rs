@@ -39,7 +39,7 @@ use crate::light::Light;
 use crate::pull_push_op::PullPushOp;
 use crate::receiver_links::ReceiverLinks;
 use crate::relight::{Frame, Relight, StageTimes};
-use crate::support_average::{near_weight, SupportAverage, NEAR_NONE};
+use crate::support_average::{near_weight, SupportAverage};
 
 /// What building the relighter's operators cost, once per loaded file.
 #[derive(Clone, Copy, Debug, Default, Serialize)]
@@ -194,7 +194,7 @@ impl<'a> CpuRelighter<'a> {
         let clearance = if self.support_average {
             self.clearance(light)
         } else {
-            f32::INFINITY
+            None
         };
         let per_point: Vec<([f32; 3], u32, bool)> = (0..senders)
             .into_par_iter()
@@ -230,30 +230,35 @@ impl<'a> CpuRelighter<'a> {
         )
     }
 
-    /// How far the light is from the surfaces near it: the least height of the light over the
-    /// tangent plane of a sender point whose support it is within [`NEAR_NONE`] radii of
-    /// (infinite when there is none). The order of the minimum does not change it.
-    fn clearance(&self, light: &Light) -> f32 {
+    /// The surface nearest the light: the least height of the light over the tangent plane
+    /// of a sender point whose support disk, and the surface, lie under it, with that point's
+    /// normal (`None`
+    /// when there is none). Ties go to the lower index, so the result does not depend on the
+    /// order of the reduction.
+    fn clearance(&self, light: &Light) -> Option<(f32, Vec3)> {
         let b = &self.ib.basis;
         let senders = b.level_offsets[self.sender_levels] as usize;
-        (0..senders)
+        let nearest = (0..senders)
             .into_par_iter()
-            .map(|j| {
+            .filter_map(|j| {
                 let d = light.position - Vec3::from(b.positions[j]);
                 let h = d.dot(Vec3::from(b.normals[j]));
-                if h > 0.0 && d.length_squared() < (NEAR_NONE * b.radii[j]).powi(2) {
-                    h
-                } else {
-                    f32::INFINITY
-                }
+                // The light must lie over the point's support disk, and over the surface.
+                let n = Vec3::from(b.normals[j]);
+                (h > 0.0
+                    && d.length_squared() - h * h < b.radii[j] * b.radii[j]
+                    && self.support.on_surface(light.position - n * h, n))
+                .then_some((h, j))
             })
-            .reduce(|| f32::INFINITY, f32::min)
+            .min_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        nearest.map(|(h, j)| (h, Vec3::from(b.normals[j])))
     }
 
     /// The fraction of shadow rays from sender point `j` that reach the light, and the number
-    /// of rays cast. The rays end on a disk around the light whose radius is at most half the
-    /// light's `clearance` from the surfaces near it, so that they never end behind them.
-    fn visibility(&self, j: usize, light: &Light, clearance: f32) -> (f32, u32) {
+    /// of rays cast. The rays end on a disk around the light, and the disk reaches at most
+    /// half-way to the surface nearest the light (`clearance`: its height and normal), so that
+    /// no ray ends behind it.
+    fn visibility(&self, j: usize, light: &Light, clearance: Option<(f32, Vec3)>) -> (f32, u32) {
         let b = &self.ib.basis;
         let eps = self.caster.ray_epsilon();
         let k = self.shadow_rays;
@@ -263,10 +268,16 @@ impl<'a> CpuRelighter<'a> {
         // fixed pattern turned per point.
         let to_light = light.position - x;
         let dist = to_light.length();
-        let radius = (0.5 * b.disk_radii[b.level_of(j)])
-            .min(0.25 * dist)
-            .min(0.5 * clearance);
-        let (t, bt) = (to_light / dist.max(f32::MIN_POSITIVE)).any_orthonormal_pair();
+        let l = to_light / dist.max(f32::MIN_POSITIVE);
+        let mut radius = (0.5 * b.disk_radii[b.level_of(j)]).min(0.25 * dist);
+        if let Some((h, nc)) = clearance {
+            // The disk, perpendicular to `l`, reaches `radius * sin(l, nc)` towards the surface.
+            let sin = (1.0 - l.dot(nc).powi(2)).max(0.0).sqrt();
+            if radius * sin > 0.5 * h {
+                radius = 0.5 * h / sin;
+            }
+        }
+        let (t, bt) = l.any_orthonormal_pair();
         let origin = x + n * eps;
         let turn = (j as u32).wrapping_mul(0x9E37_79B9) as f32 / 4_294_967_296.0;
         let ray = |s: u32| {

@@ -20,9 +20,9 @@
 //! lies outside the support, the angles that the support covers; each ring sector takes the
 //! value of `B_j` (and of a spot's cone) at its middle. `B_j` is tabulated once per point on a
 //! grid over its support (interpolated bilinearly), and `int B_j dA` is the table's sum, so a
-//! frame needs no R-tree query. The table is zero where no function of the finest level
-//! reaches (beyond the edge of a wall), since a function carries light only where it lies on
-//! a surface.
+//! frame needs no R-tree query. The table is zero off the surface (beyond the edge of a wall:
+//! farther than a little more than the finest level's spacing from its points), since a
+//! function carries light only where it lies on a surface.
 //!
 //! Visibility is not part of this average: the caller multiplies by the shadow rays' mean.
 
@@ -44,6 +44,9 @@ pub const NEAR_NONE: f32 = 3.0;
 /// Rings and sectors of the flux quadrature around the foot of the light.
 const RINGS: usize = 16;
 const SECTORS: usize = 8;
+/// How many of the finest level's Poisson-disk radii from its nearest point a point still
+/// counts as on the surface.
+const ON_SURFACE: f32 = 1.5;
 /// Cells per side of the table of a basis function over its support square.
 const GRID: usize = 16;
 
@@ -90,8 +93,8 @@ impl<'a> SupportAverage<'a> {
     }
 
     /// The value at `x` of point `j`'s normalised basis function on its tangent plane (whose
-    /// normal `n` is the point's): `w_j / sum_k w_k` over `j`'s level (Eq. 2); 0 where no
-    /// function of the finest level reaches, which is off the surface.
+    /// normal `n` is the point's): `w_j / sum_k w_k` over `j`'s level (Eq. 2); 0 off the
+    /// surface.
     fn basis_value(&self, j: usize, level: usize, x: Vec3, n: Vec3) -> f32 {
         let b = &self.ib.basis;
         let (xa, na) = (x.to_array(), n.to_array());
@@ -100,13 +103,27 @@ impl<'a> SupportAverage<'a> {
             return 0.0;
         }
         let sum = self.ib.weight_sum(level, xa, na);
-        // Off the surface (beyond an edge of a wall, say) the function carries no light.
-        let finest = self.ib.levels() - 1;
-        if sum > MIN_WEIGHT_SUM && self.ib.weight_sum(finest, xa, na) > MIN_WEIGHT_SUM {
+        if sum > MIN_WEIGHT_SUM && self.on_surface(x, n) {
             w / sum
         } else {
             0.0
         }
+    }
+
+    /// Whether the tangent-plane point `x` (normal `n`) lies on the surface: within
+    /// [`ON_SURFACE`] Poisson-disk radii of a point of the finest level that faces the same
+    /// way, as the finest points cover the surface at that spacing. Beyond the edge of a wall,
+    /// say, a function carries no light.
+    pub fn on_surface(&self, x: Vec3, n: Vec3) -> bool {
+        let b = &self.ib.basis;
+        let finest = self.ib.levels() - 1;
+        let reach = ON_SURFACE * b.disk_radii[finest];
+        let mut found = false;
+        self.ib
+            .for_each_weight(finest, x.to_array(), n.to_array(), |k, _| {
+                found |= Vec3::from(b.positions[k]).distance_squared(x) <= reach * reach;
+            });
+        found
     }
 
     /// Point `j`'s table, built on first use.
