@@ -29,7 +29,6 @@ fn probe_values(
     let caster = scene.build_caster();
     let m = file.transport_meta().unwrap().unwrap().params.sender_levels as usize;
     let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), m, 4);
-    r.support_average = std::env::var("H2_OFF").is_err();
     let frame = r.relight(&light).clone();
     probes
         .iter()
