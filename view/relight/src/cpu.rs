@@ -206,7 +206,11 @@ impl<'a> CpuRelighter<'a> {
                 let n = Vec3::from(b.normals[j]);
                 let mut e = light.irradiance(x, n);
                 let near = if self.support_average {
-                    near_weight(light.position.distance(x), b.radii[j])
+                    near_weight(
+                        light.position.distance(x),
+                        (light.position - x).dot(n),
+                        b.radii[j],
+                    )
                 } else {
                     0.0
                 };

@@ -35,11 +35,18 @@ use mlt_format::shepard::{IndexedBasis, MIN_WEIGHT_SUM};
 
 use crate::light::{Cone, Light};
 
-/// Within this many support radii of the light a sample is wholly the support average.
+/// Within this many support radii of the light a sample is wholly the support average, as
+/// far as the distance goes.
 pub const NEAR_FULL: f32 = 2.0;
 /// Beyond this many support radii it is wholly the point sample; in between the two blend
 /// linearly, so that a moving light changes the samples continuously.
 pub const NEAR_NONE: f32 = 3.0;
+/// The same for the light's height over the point's tangent plane: the hot spot is narrower
+/// than the support only below about one radius. (Higher, the tangent plane would also stand
+/// in badly for a curved surface: the irradiance inside a sphere with the light at its
+/// centre is constant, on the tangent plane it is not.)
+pub const LOW_FULL: f32 = 0.5;
+pub const LOW_NONE: f32 = 1.0;
 
 /// Rings and sectors of the flux quadrature around the foot of the light.
 const RINGS: usize = 16;
@@ -51,14 +58,17 @@ const ON_SURFACE: f32 = 1.5;
 const GRID: usize = 16;
 
 /// The weight of the support average against the point sample for a light at distance
-/// `dist` from a point of support radius `r`: 1 within [`NEAR_FULL`] radii, 0 beyond
-/// [`NEAR_NONE`].
-pub fn near_weight(dist: f32, r: f32) -> f32 {
+/// `dist` from a point of support radius `r` and at height `height` over its tangent plane:
+/// 1 within [`NEAR_FULL`] radii and below [`LOW_FULL`] radii, 0 beyond [`NEAR_NONE`] or
+/// above [`LOW_NONE`] radii, linear in between.
+pub fn near_weight(dist: f32, height: f32, r: f32) -> f32 {
     // Also for a NaN radius.
     if r.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return 0.0;
     }
-    ((NEAR_NONE - dist / r) / (NEAR_NONE - NEAR_FULL)).clamp(0.0, 1.0)
+    let near = ((NEAR_NONE - dist / r) / (NEAR_NONE - NEAR_FULL)).clamp(0.0, 1.0);
+    let low = ((LOW_NONE - height / r) / (LOW_NONE - LOW_FULL)).clamp(0.0, 1.0);
+    near * low
 }
 
 /// Support averages of the direct light over the basis functions of an [`IndexedBasis`].
@@ -298,11 +308,13 @@ mod tests {
 
     #[test]
     fn near_weight_blends_between_the_two_distances() {
-        assert_eq!(near_weight(1.0, 1.0), 1.0);
-        assert_eq!(near_weight(2.0, 1.0), 1.0);
-        assert_eq!(near_weight(2.5, 1.0), 0.5);
-        assert_eq!(near_weight(3.0, 1.0), 0.0);
-        assert_eq!(near_weight(1.0, 0.0), 0.0);
+        assert_eq!(near_weight(1.0, 0.1, 1.0), 1.0);
+        assert_eq!(near_weight(2.0, 0.5, 1.0), 1.0);
+        assert_eq!(near_weight(2.5, 0.1, 1.0), 0.5);
+        assert_eq!(near_weight(2.0, 0.75, 1.0), 0.5);
+        assert_eq!(near_weight(3.0, 0.1, 1.0), 0.0);
+        assert_eq!(near_weight(1.0, 1.0, 1.0), 0.0);
+        assert_eq!(near_weight(1.0, 0.1, 0.0), 0.0);
     }
 
     /// The flux that the functions of one level receive adds up to the flux through the
