@@ -3,12 +3,17 @@
 //! 1. direct irradiance at the sender points from the light, visibility averaged over several
 //!    jittered shadow rays per point (as the tech report, against binary flicker): the rays
 //!    leave the sender point and end at points spread around the light, over a disk facing the
-//!    point of radius half the sender level's disk radius (at most a quarter of the distance),
+//!    point of radius half the sender level's disk radius (at most a quarter of the distance,
+//!    and at most half the light's distance to the surfaces near it, which the rays must not
+//!    pass behind),
 //!    so that visibility is averaged over about the sender's footprint. (Jittering the start
 //!    points over the tangent plane instead leaves curved surfaces and shadows them.) Half of
 //!    the rays, spread over the disk, go first; where they all agree the point is taken as
 //!    wholly lit or shadowed, and the other half is cast only in the penumbra. Points whose
-//!    sample the pull-push replaces by their children's average cast no rays.
+//!    sample the pull-push replaces by their children's average cast no rays. Within a few
+//!    support radii of the light the unoccluded irradiance at the point is replaced by its
+//!    average over the point's basis function ([`SupportAverage`]), so that a hot spot
+//!    narrower than the spacing of the points keeps its flux.
 //! 2. pull-push projection onto the sender levels, `e = P-dagger E` (section 2.1), with the
 //!    weights precomputed ([`PullPushOp`]);
 //! 3. `i = S e`, receiver-major in full precision ([`ReceiverLinks`]), skipping senders whose
@@ -34,6 +39,7 @@ use crate::light::Light;
 use crate::pull_push_op::PullPushOp;
 use crate::receiver_links::ReceiverLinks;
 use crate::relight::{Frame, Relight, StageTimes};
+use crate::support_average::{near_weight, SupportAverage};
 
 /// What building the relighter's operators cost, once per loaded file.
 #[derive(Clone, Copy, Debug, Default, Serialize)]
@@ -67,6 +73,7 @@ pub struct CpuRelighter<'a> {
     pull_push: PullPushOp,
     /// Per sender point: whether its direct sample is used (cast rays only there).
     sample_used: Vec<bool>,
+    support: SupportAverage<'a>,
     receiver_links: ReceiverLinks,
     /// `None` only if the operator is too large for 32-bit offsets: then [`flatten`] runs.
     flatten_op: Option<FlattenOp>,
@@ -78,6 +85,10 @@ pub struct CpuRelighter<'a> {
     /// Cast half of the shadow rays first and the other half only where those disagree
     /// (step 1; on with 4 or more rays).
     pub adaptive_shadows: bool,
+    /// Near the light, average the irradiance over each sender's basis function instead of
+    /// sampling it at the point, and keep the shadow rays' ends in front of the surfaces near
+    /// the light (step 1). Off, the samples are the irradiance at the points.
+    pub support_average: bool,
     /// When false and the precomputed operator exists, step 4 is left to the caller (the
     /// renderer's GPU compute pass applies [`CpuRelighter::flatten_op`] to `Frame::i`), and
     /// `Frame::flat` is empty.
@@ -139,12 +150,14 @@ impl<'a> CpuRelighter<'a> {
             shadow_rays: shadow_rays.max(1),
             pull_push,
             sample_used,
+            support: SupportAverage::new(ib, pull_push_points(ib, sender_levels)),
             receiver_links,
             flatten_op,
             flatten_scratch: FlattenScratch::default(),
             load,
             skip_fraction: 1e-4,
             adaptive_shadows: true,
+            support_average: true,
             flatten_on_cpu: true,
             frame: Frame::default(),
             last: None,
@@ -164,62 +177,140 @@ impl<'a> CpuRelighter<'a> {
     /// Direct irradiance at every sender point (step 1); zero, without rays, at the points
     /// whose sample the pull-push does not use.
     pub fn direct(&self, light: &Light) -> Vec<f32> {
-        self.direct_counted(light).0
+        self.direct_stats(light).0
     }
 
     /// [`CpuRelighter::direct`] and the number of shadow rays it cast.
     pub fn direct_counted(&self, light: &Light) -> (Vec<f32>, u64) {
+        let (e, rays, _) = self.direct_stats(light);
+        (e, rays)
+    }
+
+    /// [`CpuRelighter::direct`], the number of shadow rays it cast and the number of points
+    /// whose sample is (partly) a support average.
+    pub fn direct_stats(&self, light: &Light) -> (Vec<f32>, u64, u64) {
         let b = &self.ib.basis;
         let senders = b.level_offsets[self.sender_levels] as usize;
-        let eps = self.caster.ray_epsilon();
-        let k = self.shadow_rays;
-        let per_point: Vec<([f32; 3], u32)> = (0..senders)
+        let clearance = if self.support_average {
+            self.clearance(light)
+        } else {
+            None
+        };
+        let per_point: Vec<([f32; 3], u32, bool)> = (0..senders)
             .into_par_iter()
             .map(|j| {
-                let x = Vec3::from(b.positions[j]);
                 if !self.sample_used[j] {
-                    return ([0.0; 3], 0);
+                    return ([0.0; 3], 0, false);
                 }
+                let x = Vec3::from(b.positions[j]);
                 let n = Vec3::from(b.normals[j]);
-                let e = light.irradiance(x, n);
-                if e == [0.0; 3] {
-                    return (e, 0);
-                }
-                // Shadow rays to points jittered over a disk around the light, facing the
-                // point, in a fixed pattern turned per point.
-                let to_light = light.position - x;
-                let dist = to_light.length();
-                let radius = (0.5 * b.disk_radii[b.level_of(j)]).min(0.25 * dist);
-                let (t, bt) = (to_light / dist.max(f32::MIN_POSITIVE)).any_orthonormal_pair();
-                let origin = x + n * eps;
-                let turn = (j as u32).wrapping_mul(0x9E37_79B9) as f32 / 4_294_967_296.0;
-                let ray = |s: u32| {
-                    let offset = if k == 1 {
-                        Vec3::ZERO
-                    } else {
-                        let r = radius * ((s as f32 + 0.5) / k as f32).sqrt();
-                        let phi = std::f32::consts::TAU * (s as f32 * 0.618_034 + turn);
-                        t * (r * phi.cos()) + bt * (r * phi.sin())
-                    };
-                    u32::from(!self.caster.occluded(origin, light.position + offset))
-                };
-                // The even rays first (spread over the whole disk); where they agree the point
-                // is taken as wholly lit or wholly shadowed, and only where they disagree (in
-                // the penumbra) are the odd rays cast too.
-                let even: u32 = (0..k).step_by(2).map(ray).sum();
-                let half = k.div_ceil(2);
-                let (v, rays) = if self.adaptive_shadows && k >= 4 && (even == 0 || even == half) {
-                    (if even == 0 { 0.0 } else { 1.0 }, half)
+                let mut e = light.irradiance(x, n);
+                let near = if self.support_average {
+                    near_weight(
+                        light.position.distance(x),
+                        (light.position - x).dot(n),
+                        b.radii[j],
+                    )
                 } else {
-                    let odd: u32 = (1..k).step_by(2).map(ray).sum();
-                    ((even + odd) as f32 / k as f32, k)
+                    0.0
                 };
-                ([e[0] * v, e[1] * v, e[2] * v], rays)
+                if near > 0.0 {
+                    let avg = self.support.irradiance(j, light);
+                    e = std::array::from_fn(|c| near * avg[c] + (1.0 - near) * e[c]);
+                }
+                if e == [0.0; 3] {
+                    return (e, 0, near > 0.0);
+                }
+                let (v, rays) = self.visibility(j, light, clearance);
+                ([e[0] * v, e[1] * v, e[2] * v], rays, near > 0.0)
             })
             .collect();
         let rays = per_point.iter().map(|p| u64::from(p.1)).sum();
-        (per_point.into_iter().flat_map(|p| p.0).collect(), rays)
+        let averaged = per_point.iter().filter(|p| p.2).count() as u64;
+        (
+            per_point.into_iter().flat_map(|p| p.0).collect(),
+            rays,
+            averaged,
+        )
     }
+
+    /// The surface nearest the light: the least height of the light over the tangent plane
+    /// of a sender point whose support disk, and the surface, lie under it, with that point's
+    /// normal (`None`
+    /// when there is none). Ties go to the lower index, so the result does not depend on the
+    /// order of the reduction.
+    fn clearance(&self, light: &Light) -> Option<(f32, Vec3)> {
+        let b = &self.ib.basis;
+        let senders = b.level_offsets[self.sender_levels] as usize;
+        let nearest = (0..senders)
+            .into_par_iter()
+            .filter_map(|j| {
+                let d = light.position - Vec3::from(b.positions[j]);
+                let h = d.dot(Vec3::from(b.normals[j]));
+                // The light must lie over the point's support disk, and over the surface.
+                let n = Vec3::from(b.normals[j]);
+                (h > 0.0
+                    && d.length_squared() - h * h < b.radii[j] * b.radii[j]
+                    && self.support.on_surface(light.position - n * h, n))
+                .then_some((h, j))
+            })
+            .min_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        nearest.map(|(h, j)| (h, Vec3::from(b.normals[j])))
+    }
+
+    /// The fraction of shadow rays from sender point `j` that reach the light, and the number
+    /// of rays cast. The rays end on a disk around the light, and the disk reaches at most
+    /// half-way to the surface nearest the light (`clearance`: its height and normal), so that
+    /// no ray ends behind it.
+    fn visibility(&self, j: usize, light: &Light, clearance: Option<(f32, Vec3)>) -> (f32, u32) {
+        let b = &self.ib.basis;
+        let eps = self.caster.ray_epsilon();
+        let k = self.shadow_rays;
+        let x = Vec3::from(b.positions[j]);
+        let n = Vec3::from(b.normals[j]);
+        // Shadow rays to points jittered over a disk around the light, facing the point, in a
+        // fixed pattern turned per point.
+        let to_light = light.position - x;
+        let dist = to_light.length();
+        let l = to_light / dist.max(f32::MIN_POSITIVE);
+        let mut radius = (0.5 * b.disk_radii[b.level_of(j)]).min(0.25 * dist);
+        if let Some((h, nc)) = clearance {
+            // The disk, perpendicular to `l`, reaches `radius * sin(l, nc)` towards the surface.
+            let sin = (1.0 - l.dot(nc).powi(2)).max(0.0).sqrt();
+            if radius * sin > 0.5 * h {
+                radius = 0.5 * h / sin;
+            }
+        }
+        let (t, bt) = l.any_orthonormal_pair();
+        let origin = x + n * eps;
+        let turn = (j as u32).wrapping_mul(0x9E37_79B9) as f32 / 4_294_967_296.0;
+        let ray = |s: u32| {
+            let offset = if k == 1 {
+                Vec3::ZERO
+            } else {
+                let r = radius * ((s as f32 + 0.5) / k as f32).sqrt();
+                let phi = std::f32::consts::TAU * (s as f32 * 0.618_034 + turn);
+                t * (r * phi.cos()) + bt * (r * phi.sin())
+            };
+            u32::from(!self.caster.occluded(origin, light.position + offset))
+        };
+        // The even rays first (spread over the whole disk); where they agree the point is
+        // taken as wholly lit or wholly shadowed, and only where they disagree (in the
+        // penumbra) are the odd rays cast too.
+        let even: u32 = (0..k).step_by(2).map(ray).sum();
+        let half = k.div_ceil(2);
+        if self.adaptive_shadows && k >= 4 && (even == 0 || even == half) {
+            (if even == 0 { 0.0 } else { 1.0 }, half)
+        } else {
+            let odd: u32 = (1..k).step_by(2).map(ray).sum();
+            ((even + odd) as f32 / k as f32, k)
+        }
+    }
+}
+
+/// The points of the coarsest `levels` levels of `ib`.
+fn pull_push_points(ib: &IndexedBasis, levels: usize) -> usize {
+    ib.basis.level_offsets[levels.min(ib.levels())] as usize
 }
 
 impl Relight for CpuRelighter<'_> {
@@ -240,7 +331,7 @@ impl Relight for CpuRelighter<'_> {
         }
         let mut times = StageTimes::default();
         let t = Instant::now();
-        let (mut e, shadow_rays) = self.direct_counted(light);
+        let (mut e, shadow_rays, averaged_points) = self.direct_stats(light);
         times.direct_ms = t.elapsed().as_secs_f64() * 1e3;
 
         let t = Instant::now();
@@ -284,6 +375,7 @@ impl Relight for CpuRelighter<'_> {
             times,
             senders_used: used,
             shadow_rays,
+            averaged_points,
             reused: false,
         };
         self.last = Some(*light);

@@ -5,6 +5,8 @@
 //! - [`relight`]: the [`Relight`] interface, the [`Frame`] it produces and its [`StageTimes`];
 //! - [`cpu`]: [`CpuRelighter`], the CPU implementation: direct light by shadow rays, then the
 //!   three operators below, built once per file;
+//! - [`support_average`]: the direct light averaged over a sender's basis function, the
+//!   sample of a light close to the surface;
 //! - [`pull_push_op`]: the pull-push projection `e = P-dagger E` (section 2.1) with precomputed
 //!   weights;
 //! - [`receiver_links`]: `i = S e` receiver-major in full precision (sections 3.1-3.3);
@@ -21,6 +23,7 @@ pub mod light;
 pub mod pull_push_op;
 pub mod receiver_links;
 pub mod relight;
+pub mod support_average;
 
 pub use cpu::{CpuRelighter, LoadStats};
 pub use error::RelightError;
@@ -29,3 +32,4 @@ pub use light::{Light, LightError};
 pub use pull_push_op::PullPushOp;
 pub use receiver_links::ReceiverLinks;
 pub use relight::{Frame, Relight, StageTimes};
+pub use support_average::SupportAverage;

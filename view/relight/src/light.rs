@@ -126,10 +126,22 @@ impl Light {
         }
         let l = d / d2.sqrt();
         let cos = n.dot(l).max(0.0);
-        let spot = match self.cone {
+        let spot = self.cone_factor(-l);
+        let k = cos * spot / d2;
+        [
+            self.intensity[0] * k,
+            self.intensity[1] * k,
+            self.intensity[2] * k,
+        ]
+    }
+
+    /// The fraction of the intensity emitted along the unit direction `dir` (from the light):
+    /// 1 for a point light, the cone's falloff for a spot.
+    pub fn cone_factor(&self, dir: Vec3) -> f32 {
+        match self.cone {
             Cone::None => 1.0,
             Cone::Hard { axis, cos_half } => {
-                if axis.dot(-l) >= cos_half {
+                if axis.dot(dir) >= cos_half {
                     1.0
                 } else {
                     0.0
@@ -141,16 +153,10 @@ impl Light {
                 cos_outer,
             } => {
                 let scale = 1.0 / (cos_inner - cos_outer).max(1e-3);
-                let t = ((axis.dot(-l) - cos_outer) * scale).clamp(0.0, 1.0);
+                let t = ((axis.dot(dir) - cos_outer) * scale).clamp(0.0, 1.0);
                 t * t
             }
-        };
-        let k = cos * spot / d2;
-        [
-            self.intensity[0] * k,
-            self.intensity[1] * k,
-            self.intensity[2] * k,
-        ]
+        }
     }
 }
 

@@ -37,6 +37,9 @@ pub struct Frame {
     pub senders_used: usize,
     /// Shadow rays cast for the direct light.
     pub shadow_rays: u64,
+    /// Sender points whose direct sample was averaged over their basis function (the light
+    /// was within a few support radii).
+    pub averaged_points: u64,
     /// True when the light had not moved and the previous frame was reused.
     pub reused: bool,
 }

@@ -71,6 +71,12 @@ pub struct RelightArgs {
     /// where those disagree (the penumbra).
     #[arg(long)]
     pub all_shadow_rays: bool,
+    /// Sample the direct light only at the sender points, also near the light; by default,
+    /// within a few support radii of the light, it is averaged over each sender's basis
+    /// function so that a hot spot keeps its flux (and the shadow rays end in front of the
+    /// surfaces next to the light).
+    #[arg(long)]
+    pub point_samples: bool,
 }
 
 /// How the GPU renders.

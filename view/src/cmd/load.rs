@@ -81,6 +81,7 @@ pub fn with_viewing<T>(args: &BakedArgs, f: impl FnOnce(Viewing<'_>) -> Result<T
         relight.shadow_rays,
     );
     relighter.adaptive_shadows = !relight.all_shadow_rays;
+    relighter.support_average = !relight.point_samples;
     if relighter.flatten_op().is_some() && !relighter.load_stats().points_in_morton_order {
         eprintln!(
             "note: {} stores its points in an older order; baking it again makes CPU flattening \

@@ -47,6 +47,7 @@ fn relight_frames(args: &TimingsArgs, v: &mut Viewing<'_>) -> serde_json::Value 
     let mut per_stage: [Vec<f64>; 4] = Default::default();
     let mut senders = Vec::new();
     let mut rays = Vec::new();
+    let mut averaged = Vec::new();
     for f in 0..n.max(1) {
         let l = light_on_path(&v.light, path_radius, f, n.max(1));
         let frame = v.relighter.relight(&l);
@@ -57,6 +58,7 @@ fn relight_frames(args: &TimingsArgs, v: &mut Viewing<'_>) -> serde_json::Value 
         per_stage[3].push(t.flatten_ms);
         senders.push(frame.senders_used as f64);
         rays.push(frame.shadow_rays as f64);
+        averaged.push(frame.averaged_points as f64);
     }
     let [d, p, s, fl] = per_stage.map(median);
     eprintln!(
@@ -72,6 +74,8 @@ fn relight_frames(args: &TimingsArgs, v: &mut Viewing<'_>) -> serde_json::Value 
         "median_ms": {"direct": d, "project": p, "transport": s, "flatten": fl, "total": d + p + s + fl},
         "median_senders_used": median(senders),
         "median_shadow_rays_cast": median(rays),
+        "support_average": !args.baked.relight.point_samples,
+        "median_averaged_points": median(averaged),
         "load": v.relighter.load_stats(),
         "gpu": "not used: CPU relighting only (`view render FILE --out DIR` renders)",
     })
