@@ -853,6 +853,43 @@ mod tests {
         assert!((s / m as f64 - 2.0 / 3.0).abs() < 0.005, "{}", s / m as f64);
     }
 
+    /// In a closed sphere of albedo `rho` lit by a point light at its centre, every wall
+    /// point sees uniform radiance, so the indirect vector irradiance is
+    /// `rho/(1-rho) E0` along the inward normal (`E0 = I/R^2`) and zero across it.
+    #[test]
+    fn vector_irradiance_in_a_closed_sphere_points_along_the_normal() {
+        let scene = mlt_scenes::load_scene("builtin:sphere?albedo=0.5&radius=1").unwrap();
+        let caster = scene.build_caster();
+        let light = Light::point(Vec3::ZERO, [1.0; 3]).unwrap();
+        let points: Vec<Probe> = [
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::new(0.0, -1.0, 0.0),
+            Vec3::new(0.6, 0.0, 0.8),
+        ]
+        .iter()
+        .map(|&x| Probe {
+            position: x,
+            normal: -x,
+        })
+        .collect();
+        let opts = ReferenceOptions::new(2000, 5);
+        let (v, se) = reference_vector_irradiance(caster.as_ref(), &light, &points, &opts).unwrap();
+        for (k, p) in points.iter().enumerate() {
+            for c in 0..3 {
+                let e = Vec3::new(v[9 * k + 3 * c], v[9 * k + 3 * c + 1], v[9 * k + 3 * c + 2]);
+                let along = e.dot(p.normal);
+                let across = (e - p.normal * along).length();
+                let tol = 4.0 * se[k] + 0.01;
+                assert!(
+                    (along - 1.0).abs() < tol,
+                    "point {k}: {along} (se {})",
+                    se[k]
+                );
+                assert!(across < 2.0 * tol, "point {k}: tangential {across}");
+            }
+        }
+    }
+
     #[test]
     fn odd_or_zero_spp_is_refused() {
         assert!(ReferenceOptions::new(3, 0).check().is_err());
