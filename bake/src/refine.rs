@@ -24,6 +24,10 @@
 //! its links are full values (Eq. 17 subtracts nothing), so it gets the same rule, and it is
 //! queued even though no coarser receiver has it as a child.
 //!
+//! Refinement also sums, under uniform emission at the coarsest senders, the single-bounce light
+//! of the links it drops against that of the links it keeps ([`RefineStats::dropped_share`]):
+//! the bake's estimate of what the truncation of T at epsilon changes.
+//!
 //! When any link of a receiver passed the test, its children are queued for the next level. The
 //! receivers of a level are processed in parallel; each one's result depends only on its index,
 //! the seed and the coarser levels, so T is identical for any thread count.
