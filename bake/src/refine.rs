@@ -24,6 +24,10 @@
 //! its links are full values (Eq. 17 subtracts nothing), so it gets the same rule, and it is
 //! queued even though no coarser receiver has it as a child.
 //!
+//! Refinement also sums, under uniform emission at the coarsest senders, the single-bounce light
+//! of the links it drops against that of the links it keeps ([`RefineStats::dropped_share`]):
+//! the bake's estimate of what the truncation of T at epsilon changes.
+//!
 //! When any link of a receiver passed the test, its children are queued for the next level. The
 //! receivers of a level are processed in parallel; each one's result depends only on its index,
 //! the seed and the coarser levels, so T is identical for any thread count.
@@ -110,6 +114,42 @@ pub struct RefineStats {
     pub links_per_level: Vec<u64>,
     pub rays: u64,
     pub unsupported_hits: u64,
+    /// Per colour channel, the single-bounce light that T's kept links deliver, and that the
+    /// links the keep rules of Fig. 5 dropped would have delivered, under uniform unit emission
+    /// at the coarsest senders (the weighting of the bake's other error estimates): per
+    /// processed receiver `i` of level `l`, the signed irradiance along its normal,
+    /// `sum_j n_i . T_ij` over coarsest senders `j`, times the area its basis function covers
+    /// (`R_l^2`, the level's disk radius squared), so that summed over the levels it
+    /// approximates the integral of the hierarchical expansion. See
+    /// [`RefineStats::dropped_share`].
+    pub kept_mass: [f64; 3],
+    pub dropped_mass: [f64; 3],
+}
+
+impl RefineStats {
+    /// The share of the single-bounce light that refinement dropped at epsilon,
+    /// `d / (k + d)` of the signed sums above in the worst colour channel (negative when the
+    /// dropped links would have taken light away). Dropped links of finer receivers are
+    /// differences from the coarser levels' reconstruction (Eq. 17): where they share a sign
+    /// the expansion is biased there, and the sum says by how much; where they only carry
+    /// detail they cancel. Receivers that refinement never processed are not in it.
+    pub fn dropped_share(&self) -> f64 {
+        (0..3)
+            .map(|c| {
+                let all = self.kept_mass[c] + self.dropped_mass[c];
+                if all > 0.0 {
+                    self.dropped_mass[c] / all
+                } else {
+                    0.0
+                }
+            })
+            .fold(0.0, |m: f64, d| if d.abs() > m.abs() { d } else { m })
+    }
+}
+
+/// Per channel, `n . v_c` of a link `v` at a receiver of normal `n`.
+fn along_normal(v: &[f32; LINK_DIM], n: [f32; 3]) -> [f64; 3] {
+    std::array::from_fn(|c| (n[0] * v[3 * c] + n[1] * v[3 * c + 1] + n[2] * v[3 * c + 2]) as f64)
 }
 
 struct Processed {
@@ -118,6 +158,11 @@ struct Processed {
     /// receiver's children are refined.
     refine: bool,
     counts: GatherCounts,
+    /// Per channel, the irradiance along the normal that the dropped links to coarsest
+    /// senders would have delivered under unit emission ([`RefineStats::kept_mass`]).
+    dropped: [f64; 3],
+    /// The same for the kept links.
+    kept: [f64; 3],
 }
 
 /// Computes T adaptively. `neighbors` and `children` are the basis' adjacency
@@ -171,6 +216,11 @@ pub fn refine(
             stats.rays += p.counts.rays;
             stats.unsupported_hits += p.counts.unsupported;
             kept += p.links.len() as u64;
+            let area = (b.disk_radii[l] as f64).powi(2);
+            for c in 0..3 {
+                stats.dropped_mass[c] += area * p.dropped[c];
+                stats.kept_mass[c] += area * p.kept[c];
+            }
             t.push_row(i, &p.links, p.counts.unsupported);
             if p.refine && l + 1 < b.levels() {
                 next.extend_from_slice(children.row(i as usize));
@@ -253,12 +303,22 @@ fn process(
     let eps = settings.epsilon;
     let mut links = Vec::new();
     let mut refine = false;
+    let mut dropped = [0.0f64; 3];
+    let mut lose = |j: u32, v: &[f32; LINK_DIM]| {
+        if j < sender_coarsest {
+            for (d, a) in dropped.iter_mut().zip(along_normal(v, n)) {
+                *d += a;
+            }
+        }
+    };
     for &j in &touched {
         let v = scratch.get(j);
         if link_norm(v) <= eps {
             // The base block of the hierarchy (module docs): kept, without refining.
             if (level == 0 || !has_parent) && j < sender_coarsest && link_norm(v) > 0.0 {
                 links.push((j, *v));
+            } else {
+                lose(j, v);
             }
             continue;
         }
@@ -271,12 +331,24 @@ fn process(
         if keep {
             links.push((j, *v));
             refine = true;
+        } else {
+            lose(j, v);
         }
     }
     scratch.touched = touched;
+    let mut kept = [0.0f64; 3];
+    for (j, v) in &links {
+        if *j < sender_coarsest {
+            for (k, a) in kept.iter_mut().zip(along_normal(v, n)) {
+                *k += a;
+            }
+        }
+    }
     Processed {
         links,
         refine,
         counts,
+        dropped,
+        kept,
     }
 }

@@ -26,6 +26,10 @@ pub struct TransportOutput {
     /// Levels of the basis to store: finer levels without a link of S are left out (see
     /// [`trim_levels`]); the links already index only the stored points.
     pub levels_stored: usize,
+    /// The share of the single-bounce light refinement dropped at epsilon
+    /// ([`RefineStats::dropped_share`]); `None` when T came from shards, which do not record
+    /// it.
+    pub refinement_drop: Option<f64>,
 }
 
 /// How long the Neumann series `S = T + T^2 + ...` runs (section 3.2).
@@ -193,7 +197,27 @@ pub fn compute_transport(
 ) -> Result<TransportOutput, BakeError> {
     check_params(&params, ib.levels() as u32)?;
     let (t, rstats, refine_s) = refine_t(ib, caster, &params, None, obs);
-    finish_transport(ib, t, rstats, params, policy, refine_s, obs)
+    let dropped = rstats.dropped_share();
+    let epsilon = params.epsilon;
+    let mut out = finish_transport(ib, t, rstats, params, policy, refine_s, obs)?;
+    out.refinement_drop = Some(dropped);
+    if let Some(w) = refinement_warning(dropped, epsilon, policy.tolerance) {
+        obs.warn(&w);
+        out.warnings.push(w);
+    }
+    Ok(out)
+}
+
+/// The warning when the links of T dropped at epsilon carry more than `tolerance` of the
+/// single-bounce light ([`RefineStats::dropped_share`], either sign).
+pub fn refinement_warning(dropped: f64, epsilon: f32, tolerance: f64) -> Option<String> {
+    (dropped.abs() > tolerance).then(|| {
+        format!(
+            "links of T dropped at epsilon {epsilon} would have {} about {:.1} % of the single-bounce light (uniform-emission estimate; not in the file's error estimate); a smaller --epsilon keeps them",
+            if dropped > 0.0 { "added" } else { "taken away" },
+            100.0 * dropped.abs()
+        )
+    })
 }
 
 /// The refinement of T (optionally only of the receivers marked in `needed`, for a shard);
@@ -228,7 +252,12 @@ pub fn refine_t(
     obs.done(
         "refinement of T",
         refine_s,
-        &format!("{} links, {} rays", t.link_count(), rstats.rays),
+        &format!(
+            "{} links, {} rays; links dropped at epsilon: {:.2} % of the single-bounce light (uniform-emission estimate)",
+            t.link_count(),
+            rstats.rays,
+            100.0 * rstats.dropped_share()
+        ),
     );
     (t, rstats, refine_s)
 }
@@ -324,6 +353,7 @@ pub fn finish_transport(
         timings,
         warnings,
         levels_stored: p.levels_stored,
+        refinement_drop: None,
     })
 }
 

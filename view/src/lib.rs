@@ -9,6 +9,7 @@ pub mod frame;
 pub mod gpu;
 pub mod headless;
 pub mod images;
+pub mod oracle;
 pub mod probe;
 pub mod reference;
 pub mod window;

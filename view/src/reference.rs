@@ -219,6 +219,7 @@ impl Pcg32 {
 /// Stream domains, so that pixels, halves and probes never share a stream.
 const DOMAIN_PIXEL: u64 = 0x5049_5845_4C00;
 const DOMAIN_PROBE: u64 = 0x5052_4F42_4500;
+const DOMAIN_VECTOR: u64 = 0x5645_4354_4F52;
 
 /// `x > 0` (false for NaN).
 fn positive(x: f32) -> bool {
@@ -379,6 +380,99 @@ impl Tracer<'_> {
             return [0.0; 3];
         }
         std::array::from_fn(|c| y.albedo[c] * inv_pi * ed[c] * g / denom)
+    }
+
+    /// One estimate of the indirect *vector* irradiance `E_i(x) = ∫_Ω L_i(ω) ω dω` over the
+    /// hemisphere of `n` (`L_i` the radiance of bounces >= 1 arriving at `x`), per colour
+    /// channel: `[r.x, r.y, r.z, g.x, .., b.z]`, the layout of a receiver coefficient.
+    ///
+    /// The first segment is sampled uniformly over the hemisphere (pdf `1/2π`, so the
+    /// tangential components have finite variance; a cosine-sampled direction would divide them
+    /// by `cos θ`), and the one-bounce part is combined by multiple importance sampling with a
+    /// sample traced from the light, as in [`Self::indirect_sample`]. The radiance leaving the
+    /// first hit `y` toward `x` also carries `ρ(y)/π E_i(y)`, one path of
+    /// [`Self::indirect_sample`] at `y`.
+    fn vector_sample(&self, x: Vec3, n: Vec3, rng: &mut Pcg32) -> [f32; 9] {
+        let mut out = [0.0f32; 9];
+        let mut add = |v: [f32; 3], d: Vec3| {
+            for c in 0..3 {
+                for k in 0..3 {
+                    out[c * 3 + k] += v[c] * d[k];
+                }
+            }
+        };
+        let inv_pi = std::f32::consts::FRAC_1_PI;
+        let inv_2pi = 0.5 * inv_pi;
+        let po = x + n * self.eps;
+        // Light-sampled one-bounce term.
+        let (u1, u2) = (rng.next_f32(), rng.next_f32());
+        let z = 1.0 - 2.0 * u1;
+        let r = (1.0 - z * z).max(0.0).sqrt();
+        let phi = std::f32::consts::TAU * u2;
+        let w = Vec3::new(r * phi.cos(), r * phi.sin(), z);
+        if let Some(y) = self
+            .caster
+            .intersect(self.light.position, w, 0.0, f32::INFINITY)
+        {
+            let d = y.position - po;
+            let d2 = d.length_squared();
+            if positive(d2) {
+                let dir = d / d2.sqrt();
+                let cos_y = y.geometric_normal.dot(-dir);
+                if positive(n.dot(dir)) && positive(cos_y) {
+                    let ed = self.light.irradiance(y.position, y.shading_normal);
+                    let yo = y.position + y.geometric_normal * self.eps;
+                    if ed != [0.0; 3] && !self.caster.occluded(po, yo) {
+                        let p_g = inv_2pi * cos_y / d2;
+                        let p_l = self.light_pdf(y.position, y.geometric_normal);
+                        let denom = p_g + p_l;
+                        if positive(denom) && denom.is_finite() {
+                            let g = cos_y / d2 / denom;
+                            add(
+                                std::array::from_fn(|c| y.albedo[c] * inv_pi * ed[c] * g),
+                                dir,
+                            );
+                        }
+                    }
+                }
+            }
+        }
+        // Uniformly sampled first segment.
+        let (u1, u2) = (rng.next_f32(), rng.next_f32());
+        let zc = u1;
+        let rr = (1.0 - zc * zc).max(0.0).sqrt();
+        let phi = std::f32::consts::TAU * u2;
+        let (t, b) = onb(n);
+        let dir = (t * (rr * phi.cos()) + b * (rr * phi.sin()) + n * zc).normalize();
+        if !positive(dir.dot(n)) {
+            return out;
+        }
+        let Some(hit) = self.caster.intersect(po, dir, 0.0, f32::INFINITY) else {
+            return out;
+        };
+        let two_pi = std::f32::consts::TAU;
+        let ed = self.direct(hit.position, hit.shading_normal, hit.geometric_normal);
+        if ed != [0.0; 3] {
+            let d2 = (hit.position - po).length_squared();
+            let cos_y = hit.geometric_normal.dot(-dir).max(0.0);
+            let p_g = inv_2pi * cos_y / d2;
+            let p_l = self.light_pdf(hit.position, hit.geometric_normal);
+            let wmis = if p_g + p_l > 0.0 && p_g.is_finite() {
+                p_g / (p_g + p_l)
+            } else {
+                1.0
+            };
+            add(
+                std::array::from_fn(|c| hit.albedo[c] * inv_pi * ed[c] * two_pi * wmis),
+                dir,
+            );
+        }
+        let ei = self.indirect_sample(hit.position, hit.shading_normal, hit.geometric_normal, rng);
+        add(
+            std::array::from_fn(|c| hit.albedo[c] * inv_pi * ei[c] * two_pi),
+            dir,
+        );
+        out
     }
 
     /// The mean of `n` paths' estimates from `rng` (f64 sums).
@@ -619,6 +713,54 @@ pub fn reference_probes(
         .collect())
 }
 
+/// The indirect vector irradiance at surface points (module docs; the estimator is
+/// `Tracer::vector_sample`): per point 9 floats, `[r.x, r.y, r.z, g.x, .., b.z]`, the mean of
+/// `opts.spp` paths, and per point the standard error of the irradiance along its normal
+/// (luminance), for the noise of what is built from them. Point `k` draws from its own stream,
+/// so the result does not depend on the thread count.
+pub fn reference_vector_irradiance(
+    caster: &dyn RayCaster,
+    light: &Light,
+    points: &[Probe],
+    opts: &ReferenceOptions,
+) -> Result<(Vec<f32>, Vec<f32>), ReferenceError> {
+    opts.check()?;
+    let tracer = Tracer {
+        caster,
+        light,
+        eps: caster.ray_epsilon(),
+        opts: *opts,
+    };
+    let n_all = opts.spp as f64;
+    let per_point: Vec<([f32; 9], f32)> = points
+        .par_iter()
+        .enumerate()
+        .map(|(k, p)| {
+            let mut rng = Pcg32::new(opts.seed, DOMAIN_VECTOR, k as u64);
+            let mut sum = [0.0f64; 9];
+            let (mut lsum, mut lsq) = (0.0f64, 0.0f64);
+            for _ in 0..opts.spp {
+                let v = tracer.vector_sample(p.position, p.normal, &mut rng);
+                for (s, x) in sum.iter_mut().zip(v) {
+                    *s += x as f64;
+                }
+                let nv: [f32; 3] = std::array::from_fn(|c| {
+                    p.normal
+                        .dot(Vec3::new(v[c * 3], v[c * 3 + 1], v[c * 3 + 2]))
+                });
+                let l = luminance(nv) as f64;
+                lsum += l;
+                lsq += l * l;
+            }
+            let mean = lsum / n_all;
+            let var = ((lsq / n_all - mean * mean) * n_all / (n_all - 1.0)).max(0.0);
+            (sum.map(|s| (s / n_all) as f32), (var / n_all).sqrt() as f32)
+        })
+        .collect();
+    let se = per_point.iter().map(|p| p.1).collect();
+    Ok((per_point.into_iter().flat_map(|p| p.0).collect(), se))
+}
+
 /// Header of [`probes_to_csv`]: the columns of `view --probe-out` that the reference has
 /// (`direct_*`, `indirect_*`), then the standard errors.
 pub const PROBE_CSV_HEADER: &str = "x,y,z,nx,ny,nz,direct_r,direct_g,direct_b,indirect_r,indirect_g,indirect_b,indirect_se_r,indirect_se_g,indirect_se_b,indirect_se_lum";
@@ -693,6 +835,43 @@ mod tests {
             s += d.dot(n) as f64;
         }
         assert!((s / m as f64 - 2.0 / 3.0).abs() < 0.005, "{}", s / m as f64);
+    }
+
+    /// In a closed sphere of albedo `rho` lit by a point light at its centre, every wall
+    /// point sees uniform radiance, so the indirect vector irradiance is
+    /// `rho/(1-rho) E0` along the inward normal (`E0 = I/R^2`) and zero across it.
+    #[test]
+    fn vector_irradiance_in_a_closed_sphere_points_along_the_normal() {
+        let scene = mlt_scenes::load_scene("builtin:sphere?albedo=0.5&radius=1").unwrap();
+        let caster = scene.build_caster();
+        let light = Light::point(Vec3::ZERO, [1.0; 3]).unwrap();
+        let points: Vec<Probe> = [
+            Vec3::new(1.0, 0.0, 0.0),
+            Vec3::new(0.0, -1.0, 0.0),
+            Vec3::new(0.6, 0.0, 0.8),
+        ]
+        .iter()
+        .map(|&x| Probe {
+            position: x,
+            normal: -x,
+        })
+        .collect();
+        let opts = ReferenceOptions::new(2000, 5);
+        let (v, se) = reference_vector_irradiance(caster.as_ref(), &light, &points, &opts).unwrap();
+        for (k, p) in points.iter().enumerate() {
+            for c in 0..3 {
+                let e = Vec3::new(v[9 * k + 3 * c], v[9 * k + 3 * c + 1], v[9 * k + 3 * c + 2]);
+                let along = e.dot(p.normal);
+                let across = (e - p.normal * along).length();
+                let tol = 4.0 * se[k] + 0.01;
+                assert!(
+                    (along - 1.0).abs() < tol,
+                    "point {k}: {along} (se {})",
+                    se[k]
+                );
+                assert!(across < 2.0 * tol, "point {k}: tangential {across}");
+            }
+        }
     }
 
     #[test]

@@ -1,7 +1,8 @@
 //! `view render FILE --out DIR`: the window's rendering without a window, into files:
 //! direct.exr, indirect.exr, final.exr (linear radiance), final.png (tone mapped) and
 //! timings.json; `--frames N` moves the light along a fixed path and reports medians;
-//! `--reference SPP` adds the path-traced reference.
+//! `--reference SPP` adds the path-traced reference; `--oracle SPP` adds the basis floor
+//! (`mlt_view::oracle`) into DIR/oracle.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -13,7 +14,8 @@ use mlt_view::frame::FrameDriver;
 use mlt_view::gpu::mesh::GpuMesh;
 use mlt_view::gpu::{Gpu, Renderer};
 use mlt_view::headless::{self, Timings};
-use mlt_view::reference::{render_reference, write_reference};
+use mlt_view::oracle::{oracle, OracleRelighter};
+use mlt_view::reference::{render_reference, write_reference, ReferenceOptions};
 
 use crate::cmd::args::{BakedArgs, GpuArgs};
 use crate::cmd::load::{with_viewing, Viewing};
@@ -40,6 +42,11 @@ pub struct RenderArgs {
     /// Seed of the reference's random streams.
     #[arg(long, default_value_t = 1)]
     pub reference_seed: u64,
+    /// Also render the basis floor into DIR/oracle/: the indirect vector irradiance
+    /// path-traced with SPP paths at every basis point, projected with Eq. 7 and rendered with
+    /// the bake's flattening and splatting (compare with: view compare DIR DIR/oracle).
+    #[arg(long)]
+    pub oracle: Option<u32>,
 }
 
 pub fn run(args: &RenderArgs) -> Result<()> {
@@ -47,6 +54,9 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         let timings = images(args, &mut v)?;
         if let Some(spp) = args.reference {
             reference(args, &v, spp)?;
+        }
+        if let Some(spp) = args.oracle {
+            oracle_images(args, &mut v, spp)?;
         }
         report(args, &timings, v.relighter.load_stats());
         Ok(())
@@ -78,6 +88,50 @@ fn images(args: &RenderArgs, v: &mut Viewing<'_>) -> Result<Timings> {
     timings.load = Some(*v.relighter.load_stats());
     headless::write_outputs(&args.out, &buffers, &timings)?;
     Ok(timings)
+}
+
+/// Renders the basis floor into DIR/oracle (images as [`images`], and oracle.json).
+fn oracle_images(args: &RenderArgs, v: &mut Viewing<'_>, spp: u32) -> Result<()> {
+    let opts = ReferenceOptions::new(spp, args.reference_seed ^ 0x6f72_6163_6c65);
+    let o = oracle(v.ib, v.caster, &v.light, &opts).context("path tracing the basis floor")?;
+    let gpu = Gpu::headless().context("starting the GPU for headless rendering")?;
+    let mesh = GpuMesh::from_scene(v.scene);
+    let mut renderer = Renderer::new(&gpu, &mesh, &v.ib.basis, args.gpu.shadow_res)
+        .context("setting up the renderer")?;
+    let mut relighter = OracleRelighter::new(v.ib, &mut v.relighter, o.alpha)
+        .context("building the flattening operator over every point")?;
+    let mut driver = FrameDriver {
+        gpu: &gpu,
+        renderer: &mut renderer,
+        relighter: &mut relighter,
+        ib: v.ib,
+    };
+    let (buffers, timings) = headless::render(&mut driver, &v.camera, &v.light, 1, 0.0)
+        .context("rendering the basis floor")?;
+    let dir = args.out.join("oracle");
+    headless::write_outputs(&dir, &buffers, &timings)?;
+    let json = serde_json::json!({
+        "spp_per_point": o.spp,
+        "points": v.ib.basis.len(),
+        "relative_noise_per_point": o.relative_noise,
+        "unsupported_points": o.projection.unsupported_points,
+        "seconds": o.seconds,
+    });
+    std::fs::write(
+        dir.join("oracle.json"),
+        serde_json::to_string_pretty(&json)?,
+    )
+    .with_context(|| format!("writing {}/oracle.json", dir.display()))?;
+    eprintln!(
+        "basis floor: {spp} paths at each of {} points in {:.1} s (relative noise per point {:.3}), written to {} (compare with: view compare {} {})",
+        v.ib.basis.len(),
+        o.seconds,
+        o.relative_noise,
+        dir.display(),
+        args.out.display(),
+        dir.display()
+    );
+    Ok(())
 }
 
 /// Renders and writes the path-traced reference of the same camera and light.

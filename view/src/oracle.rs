@@ -1,0 +1,126 @@
+//! The basis floor: what the meshless basis can show at best, whatever the transport.
+//!
+//! The indirect vector irradiance (bounces >= 1) is path-traced at every point of every level
+//! ([`crate::reference::reference_vector_irradiance`], independent of the links), projected
+//! onto the hierarchical basis with Eq. 7 ([`mlt_format::pull_push::project`]: `alpha_j = f_j`
+//! on level 0, `alpha_j = f_j - F_{l-1}(p_j)` on level `l`), and handed to the renderer as
+//! the receiver coefficients `i` of a frame: flattened with the viewer's sparse operator over
+//! all points and splatted like a bake's. Its error against the path-traced image is the
+//! basis' share of the error (reconstruction from point samples, the flat basis' blending,
+//! plus the noise of the samples); the gap between it and the bake's image is the
+//! transport's (links of T dropped at epsilon, bounces 2+ on coarse receivers only, gather
+//! hits without sender support, the series truncated after the last bounce).
+
+use std::time::Instant;
+
+use mlt_format::links::LINK_DIM;
+use mlt_format::pull_push::{project, ProjectionReport};
+use mlt_format::IndexedBasis;
+use mlt_relight::flatten_op::{FlattenOp, FlattenScratch};
+use mlt_relight::{Frame, Light, Relight};
+use mlt_scenes::RayCaster;
+
+use crate::probe::Probe;
+use crate::reference::{reference_vector_irradiance, ReferenceError, ReferenceOptions};
+
+/// The projected oracle solution.
+#[derive(Clone, Debug)]
+pub struct Oracle {
+    /// Hierarchical coefficients (Eq. 7), `LINK_DIM` per point.
+    pub alpha: Vec<f32>,
+    /// Points where Eq. 7 found no coarser support.
+    pub projection: ProjectionReport,
+    /// Mean over points of the standard error of the sampled irradiance along the normal
+    /// (luminance), over the mean of that irradiance: the samples' relative noise.
+    pub relative_noise: f64,
+    /// Paths per point.
+    pub spp: u32,
+    /// Seconds spent path tracing and projecting.
+    pub seconds: f64,
+}
+
+/// Path-traces the indirect vector irradiance at every basis point for `light` and projects
+/// it with Eq. 7.
+pub fn oracle(
+    ib: &IndexedBasis,
+    caster: &dyn RayCaster,
+    light: &Light,
+    opts: &ReferenceOptions,
+) -> Result<Oracle, ReferenceError> {
+    let start = Instant::now();
+    let b = &ib.basis;
+    let points: Vec<Probe> = (0..b.len())
+        .map(|j| Probe {
+            position: b.positions[j].into(),
+            normal: b.normals[j].into(),
+        })
+        .collect();
+    let (samples, se) = reference_vector_irradiance(caster, light, &points, opts)?;
+    let mean_lum: f64 = points
+        .iter()
+        .enumerate()
+        .map(|(j, p)| {
+            let s = &samples[j * LINK_DIM..(j + 1) * LINK_DIM];
+            let e: [f32; 3] = std::array::from_fn(|c| {
+                p.normal
+                    .dot(glam::Vec3::new(s[c * 3], s[c * 3 + 1], s[c * 3 + 2]))
+            });
+            crate::images::luminance(e) as f64
+        })
+        .sum::<f64>()
+        / points.len().max(1) as f64;
+    let mean_se = se.iter().map(|&v| v as f64).sum::<f64>() / se.len().max(1) as f64;
+    let (alpha, projection) = project(ib, &samples, LINK_DIM);
+    Ok(Oracle {
+        alpha,
+        projection,
+        relative_noise: if mean_lum > 0.0 {
+            mean_se / mean_lum
+        } else {
+            0.0
+        },
+        spp: opts.spp,
+        seconds: start.elapsed().as_secs_f64(),
+    })
+}
+
+/// A [`Relight`] whose frames are another relighter's (direct light, `e`) with the receiver
+/// coefficients replaced by the oracle's and flattened on the CPU by the viewer's sparse
+/// operator over every point (the bake's relighter keeps only points with links).
+pub struct OracleRelighter<'a> {
+    inner: &'a mut dyn Relight,
+    alpha: Vec<f32>,
+    op: FlattenOp,
+    scratch: FlattenScratch,
+    frame: Frame,
+}
+
+impl<'a> OracleRelighter<'a> {
+    /// Builds the flattening operator over every point of `ib`.
+    pub fn new(
+        ib: &IndexedBasis,
+        inner: &'a mut dyn Relight,
+        alpha: Vec<f32>,
+    ) -> Result<OracleRelighter<'a>, mlt_relight::RelightError> {
+        Ok(OracleRelighter {
+            inner,
+            alpha,
+            op: FlattenOp::build(ib, None)?,
+            scratch: FlattenScratch::default(),
+            frame: Frame::default(),
+        })
+    }
+}
+
+impl Relight for OracleRelighter<'_> {
+    fn relight(&mut self, light: &Light) -> &Frame {
+        let mut frame = self.inner.relight(light).clone();
+        frame.i.clone_from(&self.alpha);
+        frame.reused = false;
+        frame.flat.resize(self.alpha.len(), 0.0);
+        self.op
+            .apply(&self.alpha, LINK_DIM, &mut frame.flat, &mut self.scratch);
+        self.frame = frame;
+        &self.frame
+    }
+}
