@@ -44,7 +44,7 @@ use std::time::Instant;
 
 use glam::Vec3;
 use mlt_relight::Light;
-use mlt_scenes::sampling::cosine_hemisphere;
+use mlt_scenes::sampling::{cosine_hemisphere, tangent_frame};
 use mlt_scenes::RayCaster;
 use rayon::prelude::*;
 
@@ -442,7 +442,7 @@ impl Tracer<'_> {
         let zc = u1;
         let rr = (1.0 - zc * zc).max(0.0).sqrt();
         let phi = std::f32::consts::TAU * u2;
-        let (t, b) = onb(n);
+        let (t, b) = tangent_frame(n);
         let dir = (t * (rr * phi.cos()) + b * (rr * phi.sin()) + n * zc).normalize();
         if !positive(dir.dot(n)) {
             return out;
