@@ -19,6 +19,7 @@ pub mod mesh_caster;
 pub mod obj;
 pub mod raycast;
 pub mod scene;
+pub mod scene_options;
 pub mod sphere_caster;
 pub mod texture;
 
@@ -30,5 +31,6 @@ pub use mesh::{Material, Mesh};
 pub use mesh_caster::MeshCaster;
 pub use raycast::{Hit, RayCaster};
 pub use scene::{load_scene, Geometry, Scene};
+pub use scene_options::{NormalSource, SceneOptions};
 pub use sphere_caster::SphereCaster;
 pub use texture::Texture;

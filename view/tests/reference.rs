@@ -101,8 +101,12 @@ fn closed_sphere_matches_the_analytic_value_within_the_stated_noise() {
             (0.8..1.25).contains(&ratio),
             "albedo {albedo}: true error RMS {rms} vs half-difference noise {sigma}"
         );
-        // Final = direct + indirect, same noise.
-        assert!((r.final_noise.rms - sigma).abs() < 1e-9 * sigma.max(1.0));
+        // Final = direct + indirect, same noise (the direct is uniform: no edge in the image).
+        assert!(
+            (r.final_noise.rms - sigma).abs() < 1e-4 * sigma,
+            "{:?}",
+            r.final_noise
+        );
         assert!((r.indirect_noise.relative - sigma / mean).abs() < 1e-6);
     }
 }
