@@ -205,8 +205,9 @@ fn unit_pair(k: u32) -> (f32, f32) {
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
     z ^= z >> 31;
-    let unit = |bits: u64| (bits >> 40) as f32 / (1u64 << 24) as f32;
-    (unit(z & 0xFFFF_FFFF), unit(z >> 32))
+    // The top 24 bits of each 32-bit half: exact in f32, below 1.
+    let unit = |bits: u64| ((bits & 0xFFFF_FFFF) >> 8) as f32 / (1u64 << 24) as f32;
+    (unit(z), unit(z >> 32))
 }
 
 /// Parses `x,y,z` (three finite numbers) from the command line.
@@ -322,19 +323,20 @@ mod tests {
         for (n, rows, cols) in [(4u32, 2u32, 2u32), (16, 4, 4), (6, 2, 3), (7, 1, 7)] {
             let o = subpixel_offsets(n);
             assert_eq!(o, subpixel_offsets(n));
-            let mut cells: Vec<(u32, u32)> = o
-                .iter()
-                .map(|p| {
-                    assert!(p.x >= -0.5 && p.x < 0.5 && p.y >= -0.5 && p.y < 0.5, "{p}");
-                    (
-                        ((p.x + 0.5) * cols as f32) as u32,
-                        ((p.y + 0.5) * rows as f32) as u32,
-                    )
-                })
-                .collect();
-            cells.sort_unstable();
-            cells.dedup();
-            assert_eq!(cells.len(), n as usize, "one offset per cell, n = {n}");
+            // Offset k lies in cell (k % cols, k / cols) (up to rounding at the cell's sides).
+            for (k, p) in o.iter().enumerate() {
+                assert!(
+                    p.x >= -0.5 && p.x <= 0.5 && p.y >= -0.5 && p.y <= 0.5,
+                    "{p}"
+                );
+                let (col, row) = ((k as u32 % cols) as f32, (k as u32 / cols) as f32);
+                let cx = (p.x + 0.5) * cols as f32 - col;
+                let cy = (p.y + 0.5) * rows as f32 - row;
+                assert!(
+                    (-1e-5..=1.0 + 1e-5).contains(&cx) && (-1e-5..=1.0 + 1e-5).contains(&cy),
+                    "n = {n}, offset {k} at {p} is not in its cell ({col}, {row})"
+                );
+            }
         }
         // The mean offset of a stratified pattern is near the pixel centre.
         let mean = subpixel_offsets(16).iter().copied().sum::<Vec2>() / 16.0;
