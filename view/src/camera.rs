@@ -181,7 +181,7 @@ pub fn subpixel_offsets(n: u32) -> Vec<Vec2> {
         return vec![Vec2::ZERO];
     }
     let rows = (1..=n)
-        .filter(|r| n % r == 0 && r * r <= n)
+        .filter(|&r| n.is_multiple_of(r) && r * r <= n)
         .max()
         .unwrap_or(1);
     let cols = n / rows;
