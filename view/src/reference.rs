@@ -162,6 +162,8 @@ pub struct ReferenceImages {
     /// Signed `(A − B) / 2` of the indirect radiance, per pixel: its RMS is the noise of
     /// `indirect` (and of `final_image`).
     pub noise_image: RgbImage,
+    /// Noise of `direct`: zero but at edges and shadow boundaries (the pixel's coverage).
+    pub direct_noise: Noise,
     /// Noise of `indirect`.
     pub indirect_noise: Noise,
     /// Noise of `final_image`: `indirect`'s and the direct part's at edges.
@@ -486,6 +488,8 @@ pub fn render_reference_with(
     let mut half_b = Vec::with_capacity(pixels.len());
     let mut final_a = Vec::with_capacity(pixels.len());
     let mut final_b = Vec::with_capacity(pixels.len());
+    let mut direct_a = Vec::with_capacity(pixels.len());
+    let mut direct_b = Vec::with_capacity(pixels.len());
     for (k, [da, db, a, b]) in pixels.into_iter().enumerate() {
         let d: [f32; 3] = std::array::from_fn(|c| 0.5 * (da[c] + db[c]));
         let avg: [f32; 3] = std::array::from_fn(|c| 0.5 * (a[c] + b[c]));
@@ -504,12 +508,15 @@ pub fn render_reference_with(
         half_b.push(b);
         final_a.push(std::array::from_fn(|c| da[c] + a[c]));
         final_b.push(std::array::from_fn(|c| db[c] + b[c]));
+        direct_a.push(da);
+        direct_b.push(db);
     }
     Ok(ReferenceImages {
         direct,
         indirect,
         final_image,
         noise_image,
+        direct_noise: Noise::from_halves(&direct_a, &direct_b),
         indirect_noise: Noise::from_halves(&half_a, &half_b),
         final_noise: Noise::from_halves(&final_a, &final_b),
         options: *opts,
@@ -556,7 +563,7 @@ pub fn reference_json(r: &ReferenceImages) -> serde_json::Value {
         "noise": {
             "indirect": r.indirect_noise,
             "final": r.final_noise,
-            "direct": {"rms": 0.0, "note": "exact: one shadow ray to the point light"},
+            "direct": r.direct_noise,
         },
         "seconds": r.seconds,
         "threads": r.threads,

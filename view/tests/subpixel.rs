@@ -83,6 +83,8 @@ fn box_filtered_direct_light_moves_toward_the_reference_at_edges() {
     let mut ro = ReferenceOptions::new(256, 1);
     ro.max_bounces = 1;
     let reference = render_reference_with(caster.as_ref(), &camera, &light, &ro).unwrap();
+    // The reference's box filter: its direct light is noisy only at the edges.
+    assert!(reference.direct_noise.rms > 0.0);
 
     // Edges: pixels where the centre sample and the 16-sample mean differ by more than 10 %
     // of the image's mean direct luminance (silhouettes and shadow boundaries).
