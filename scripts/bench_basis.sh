@@ -12,6 +12,6 @@ cargo build --release -p mlt-bake --quiet
 out="${TMPDIR:-/tmp}/bench_basis.mlt"
 for threads in 1 "$(nproc)"; do
     echo "== $manifest, $threads thread(s)"
-    ./target/release/bake "$manifest" -o "$out" --basis-only --threads "$threads" --stats-json "$out.json" "$@"
+    ./target/release/bake "$manifest" -o "$out" --basis-only --preset paper --threads "$threads" --stats-json "$out.json" "$@"
 done
 ls -l "$out"

@@ -30,5 +30,5 @@ pub mod transport;
 
 pub use error::BakeError;
 pub use observer::{Observer, Silent};
-pub use params::BakeOptions;
+pub use params::{BakeOptions, Preset};
 pub use pipeline::{bake_scene, tool_version, BakeOutput};

@@ -2,9 +2,16 @@
 //! flags (clap), a scene manifest's `[bake]` table and a batch job's table (serde, unknown keys
 //! refused), and what the bake resolves into its basis and transport parameters.
 //!
-//! The layers, highest first: the command line, the batch job, the manifest, the paper's
+//! The layers, highest first: the command line, the batch job, the manifest, the preset's
 //! defaults. [`BakeOptions::or`] puts one layer over another; [`resolve`],
 //! [`resolve_transport`] and [`bounce_policy`] fill in the defaults and check the values.
+//!
+//! A preset ([`Preset`]: `--preset NAME`, `preset = "NAME"`) is a set of defaults, not a
+//! layer: the preset named by the highest layer that names one supplies the value of every
+//! parameter that no layer sets, and an explicit value overrides it whichever layer it comes
+//! from (a manifest's `bounces = 6` holds under `--preset paper`). The default preset,
+//! [`Preset::Converged`], runs the Neumann series until it converges (`--bounces auto`, 1 %);
+//! [`Preset::Paper`] is Table 1's 4 bounces. The two presets share every other default.
 //!
 //! A new parameter is one field of [`BakeOptions`] (its doc comment is the flag's help, its
 //! name the flag `--name-with-dashes` and the table key `name_with_underscores`), one line of
@@ -35,7 +42,8 @@ pub const PARTICLE_BOUNCES: u32 = 30;
 pub const SKIPPED_BOUNCES: u32 = 3;
 pub const DEFAULT_EPSILON: f32 = 0.025;
 pub const DEFAULT_SENDER_LEVELS: u32 = 3;
-pub const DEFAULT_BOUNCES: u32 = 4;
+/// The paper's bounce count (Table 1: four bounces), the fixed count of [`Preset::Paper`].
+pub const PAPER_BOUNCES: u32 = 4;
 /// The cap of `--bounces auto` when none is given: enough for a spectral radius of 0.995 at
 /// the default 1 % tolerance (0.995^919 < 0.01).
 pub const DEFAULT_AUTO_BOUNCE_CAP: u32 = 1000;
@@ -44,11 +52,45 @@ pub const DEFAULT_GATHER_RAYS: u32 = 256;
 /// More levels than this would need more than 2^(2*16) points per coarse point.
 pub const MAX_LEVELS: u32 = 16;
 
+/// A named set of defaults for the parameters no layer sets (see the module doc).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Preset {
+    /// The series runs until the bounces left out carry under 1 % of the indirect light
+    /// (`--bounces auto`, capped at [`DEFAULT_AUTO_BOUNCE_CAP`]); the paper's other values.
+    #[default]
+    Converged,
+    /// The paper's Table 1: 4 bounces, 6 levels, epsilon 0.025, 3 sender levels; level 0 of
+    /// about 339 points (the paper's Sponza) and 256 gather rays (ours: the paper gives
+    /// neither a count for other scenes nor a ray count).
+    Paper,
+}
+
+impl Preset {
+    /// The bounce choice of this preset when no layer makes one.
+    pub fn bounce_choice(self) -> BounceChoice {
+        match self {
+            Preset::Converged => BounceChoice {
+                auto: true,
+                count: None,
+            },
+            Preset::Paper => BounceChoice {
+                auto: false,
+                count: Some(PAPER_BOUNCES),
+            },
+        }
+    }
+}
+
 /// The bake's parameters as asked for; `None` (or `false`) means "the next layer's value, else
-/// the default". The doc comments are the command line's help.
+/// the preset's". The doc comments are the command line's help.
 #[derive(Clone, Debug, Default, PartialEq, clap::Args, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct BakeOptions {
+    /// Defaults for the parameters not given: `converged` (the default: --bounces auto) or
+    /// `paper` (Table 1: 4 bounces); explicit values override it, from any layer.
+    #[arg(long, value_enum)]
+    pub preset: Option<Preset>,
     /// Number of hierarchy levels (paper: 6).
     #[arg(long)]
     pub receiver_levels: Option<u32>,
@@ -71,7 +113,7 @@ pub struct BakeOptions {
     /// Sender levels, the coarsest of the receiver levels (paper: 3).
     #[arg(long)]
     pub sender_levels: Option<u32>,
-    /// Most bounces of the Neumann series (paper: 4); with `auto_bounces`, the cap. On the
+    /// Bounces of the Neumann series (paper: 4); with `auto_bounces`, the cap. On the
     /// command line it is `--bounces N` or `--bounces auto:N` ([`BakeOptions::bounce_flag`]).
     #[arg(skip)]
     pub bounces: Option<u32>,
@@ -81,9 +123,10 @@ pub struct BakeOptions {
     #[arg(skip)]
     #[serde(default)]
     pub auto_bounces: bool,
-    /// Bounces of the Neumann series S = T + T^2 + ...: a count (paper: 4), or `auto` to
-    /// choose it from the spectral-radius estimate so that the bounces left out carry at
-    /// most --bounce-tolerance of the indirect light (`auto:N` caps it at N, default 1000).
+    /// Bounces of the Neumann series S = T + T^2 + ...: a count (paper: 4), or `auto` (the
+    /// default) to choose it from the spectral-radius estimate so that the bounces left out
+    /// carry at most --bounce-tolerance of the indirect light (`auto:N` caps it at N, default
+    /// 1000).
     #[arg(long = "bounces", value_name = "N|auto|auto:N", value_parser = parse_bounces)]
     #[serde(skip)]
     pub bounce_flag: Option<BounceChoice>,
@@ -138,6 +181,7 @@ impl BakeOptions {
         let coarse_set = self.coarse_count.is_some() || self.coarse_radius.is_some();
         let coarse = if coarse_set { self } else { lower };
         BakeOptions {
+            preset: self.preset.or(lower.preset),
             receiver_levels: self.receiver_levels.or(lower.receiver_levels),
             coarse_count: coarse.coarse_count,
             coarse_radius: coarse.coarse_radius,
@@ -161,7 +205,8 @@ impl BakeOptions {
     }
 
     /// The bounce choice of this layer, if it makes one: the command line's `--bounces`, else
-    /// the `auto_bounces` and `bounces` fields.
+    /// the `auto_bounces` and `bounces` fields. [`BakeOptions::resolved_bounces`] falls back
+    /// on the preset's.
     pub fn bounce_choice(&self) -> Option<BounceChoice> {
         if self.bounce_flag.is_some() {
             return self.bounce_flag;
@@ -170,6 +215,12 @@ impl BakeOptions {
             auto: self.auto_bounces,
             count: self.bounces,
         })
+    }
+
+    /// The bounce choice in effect: this layer's, else its preset's.
+    pub fn resolved_bounces(&self) -> BounceChoice {
+        self.bounce_choice()
+            .unwrap_or_else(|| self.preset.unwrap_or_default().bounce_choice())
     }
 
     /// Parses a manifest's `[bake]` table or a batch job's table (`what` names it in errors,
@@ -300,7 +351,7 @@ pub fn resolve(opts: &BakeOptions) -> Result<(BasisParams, Coarse), BakeError> {
 /// Resolves the transport parameters (the options over the paper's defaults).
 pub fn resolve_transport(opts: &BakeOptions, basis: &BasisParams) -> TransportParams {
     let epsilon = opts.epsilon.unwrap_or(DEFAULT_EPSILON);
-    let bounce = opts.bounce_choice();
+    let bounce = opts.resolved_bounces();
     TransportParams {
         epsilon,
         bounce_epsilon: opts.bounce_epsilon.unwrap_or(epsilon),
@@ -309,9 +360,8 @@ pub fn resolve_transport(opts: &BakeOptions, basis: &BasisParams) -> TransportPa
             .unwrap_or(DEFAULT_SENDER_LEVELS.min(basis.levels)),
         receiver_levels: basis.levels,
         bounces: match bounce {
-            Some(BounceChoice { auto: true, count }) => count.unwrap_or(DEFAULT_AUTO_BOUNCE_CAP),
-            Some(BounceChoice { auto: false, count }) => count.unwrap_or(DEFAULT_BOUNCES),
-            None => DEFAULT_BOUNCES,
+            BounceChoice { auto: true, count } => count.unwrap_or(DEFAULT_AUTO_BOUNCE_CAP),
+            BounceChoice { auto: false, count } => count.unwrap_or(PAPER_BOUNCES),
         },
         gather_rays: opts.gather_rays.unwrap_or(DEFAULT_GATHER_RAYS),
         bounces_on_all_receivers: opts.bounces_on_all_receivers,
@@ -328,9 +378,74 @@ pub fn bounce_policy(opts: &BakeOptions) -> Result<BouncePolicy, BakeError> {
         )));
     }
     Ok(BouncePolicy {
-        auto: opts.bounce_choice().is_some_and(|b| b.auto),
+        auto: opts.resolved_bounces().auto,
         tolerance,
     })
+}
+
+/// How a bake's resolved parameters differ from [`Preset::Paper`]'s, one `name ours (paper:
+/// value)` per parameter; empty for a bake made at the paper's settings. `bounce_mode` is the
+/// transport report's (`fixed` or `auto`; `None` where the file has no report).
+pub fn paper_preset_differences(
+    basis: &BasisParams,
+    transport: Option<&TransportParams>,
+    bounce_mode: Option<&str>,
+) -> Vec<String> {
+    let mut out = Vec::new();
+    let mut check = |name: &str, ours: String, paper: String| {
+        if ours != paper {
+            out.push(format!("{name} {ours} (paper: {paper})"));
+        }
+    };
+    check(
+        "levels",
+        basis.levels.to_string(),
+        DEFAULT_LEVELS.to_string(),
+    );
+    check(
+        "coarse count",
+        format!("{:?}", basis.coarse_count_target),
+        format!("{:?}", Some(DEFAULT_COARSE_COUNT)),
+    );
+    check(
+        "max misses",
+        basis.max_misses.to_string(),
+        MAX_MISSES.to_string(),
+    );
+    let Some(t) = transport else {
+        out.push("no transport operator (basis only)".into());
+        return out;
+    };
+    if let Some(mode) = bounce_mode {
+        check("bounce mode", mode.to_string(), "fixed".into());
+    }
+    check("bounces", t.bounces.to_string(), PAPER_BOUNCES.to_string());
+    check(
+        "epsilon",
+        t.epsilon.to_string(),
+        DEFAULT_EPSILON.to_string(),
+    );
+    check(
+        "bounce epsilon",
+        t.bounce_epsilon.to_string(),
+        DEFAULT_EPSILON.to_string(),
+    );
+    check(
+        "sender levels",
+        t.sender_levels.to_string(),
+        DEFAULT_SENDER_LEVELS.to_string(),
+    );
+    check(
+        "gather rays",
+        t.gather_rays.to_string(),
+        DEFAULT_GATHER_RAYS.to_string(),
+    );
+    check(
+        "bounces on all receivers",
+        t.bounces_on_all_receivers.to_string(),
+        "false".into(),
+    );
+    out
 }
 
 #[cfg(test)]
@@ -388,8 +503,78 @@ mod tests {
     }
 
     #[test]
+    fn the_preset_fills_only_what_no_layer_sets() {
+        let (p, _) = resolve(&BakeOptions::default()).unwrap();
+        // No preset: the series runs to convergence.
+        let none = BakeOptions::default();
+        assert!(bounce_policy(&none).unwrap().auto);
+        assert_eq!(
+            resolve_transport(&none, &p).bounces,
+            DEFAULT_AUTO_BOUNCE_CAP
+        );
+        // The paper's preset, from any layer: the fixed 4.
+        let paper_manifest = table("preset = \"paper\"").unwrap();
+        let paper_cli = cli(&["--preset", "paper"]);
+        for opts in [
+            paper_cli.or(&none),
+            none.or(&paper_manifest),
+            none.or(&paper_manifest).or(&none),
+        ] {
+            assert!(!bounce_policy(&opts).unwrap().auto);
+            let t = resolve_transport(&opts, &p);
+            assert_eq!((t.bounces, t.epsilon), (PAPER_BOUNCES, DEFAULT_EPSILON));
+        }
+        // An explicit value of a lower layer overrides a higher layer's preset...
+        let manifest = table("bounces = 6\nepsilon = 0.1").unwrap();
+        let opts = paper_cli.or(&manifest);
+        let t = resolve_transport(&opts, &p);
+        assert_eq!((t.bounces, t.epsilon), (6, 0.1));
+        assert!(!bounce_policy(&opts).unwrap().auto);
+        let opts = paper_cli.or(&table("auto_bounces = true").unwrap());
+        assert!(bounce_policy(&opts).unwrap().auto);
+        // ... and the highest layer's preset wins over a lower one's.
+        let opts = cli(&["--preset", "converged"]).or(&paper_manifest);
+        assert!(bounce_policy(&opts).unwrap().auto);
+        let job = table("preset = \"paper\"\nbounces = 3").unwrap();
+        let opts = BakeOptions::default()
+            .or(&job)
+            .or(&table("preset = \"converged\"").unwrap());
+        assert_eq!(opts.preset, Some(Preset::Paper));
+        assert_eq!(resolve_transport(&opts, &p).bounces, 3);
+        assert!(table("preset = \"fast\"").is_err());
+    }
+
+    #[test]
+    fn paper_differences_name_each_parameter_off_the_paper() {
+        let paper = cli(&["--preset", "paper"]);
+        let (p, _) = resolve(&paper).unwrap();
+        let t = resolve_transport(&paper, &p);
+        assert!(paper_preset_differences(&p, Some(&t), Some("fixed")).is_empty());
+        let (pd, _) = resolve(&BakeOptions::default()).unwrap();
+        let td = resolve_transport(&BakeOptions::default(), &pd);
+        let d = paper_preset_differences(&pd, Some(&td), Some("auto"));
+        assert_eq!(d.len(), 2, "{d:?}");
+        assert!(d[0].starts_with("bounce mode auto") && d[1].starts_with("bounces 1000"));
+        let small = cli(&[
+            "--preset",
+            "paper",
+            "--receiver-levels",
+            "4",
+            "--gather-rays",
+            "8",
+        ]);
+        let (ps, _) = resolve(&small).unwrap();
+        let ts = resolve_transport(&small, &ps);
+        let d = paper_preset_differences(&ps, Some(&ts), None);
+        assert_eq!(d.len(), 2, "{d:?}");
+        assert!(d[0].starts_with("levels 4") && d[1].starts_with("gather rays 8"));
+        assert_eq!(paper_preset_differences(&p, None, None).len(), 1);
+    }
+
+    #[test]
     fn every_flag_parses() {
         let o = cli(&[
+            "--preset=paper",
             "--receiver-levels=3",
             "--coarse-radius=0.25",
             "--seed=9",
@@ -408,6 +593,7 @@ mod tests {
         ])
         .or(&BakeOptions::default());
         let expected = BakeOptions {
+            preset: Some(Preset::Paper),
             receiver_levels: Some(3),
             coarse_radius: Some(0.25),
             seed: Some(9),
@@ -448,7 +634,7 @@ mod tests {
     #[test]
     fn tables_take_every_key_and_refuse_unknown_ones_naming_the_file() {
         let o = table(
-            "receiver_levels = 3\nsender_levels = 2\ncoarse_count = 30\nseed = 4\nepsilon = 0.001\n\
+            "preset = \"converged\"\nreceiver_levels = 3\nsender_levels = 2\ncoarse_count = 30\nseed = 4\nepsilon = 0.001\n\
              bounce_epsilon = 0.0001\nbounces = 24\nauto_bounces = true\nbounce_tolerance = 0.02\n\
              gather_rays = 128\nmax_misses = 50\nbounces_on_all_receivers = true\nbasis_only = true\n",
         )

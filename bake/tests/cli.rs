@@ -104,7 +104,29 @@ fn bakes_a_builtin_writes_stats_and_reports_info() {
             text.lines().any(|l| l.starts_with("visibility rays")),
             "{text}"
         );
+        // This small bake is not the paper's: the parameters that differ are named.
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert!(
+            err.contains("not baked at the paper's settings")
+                && err.contains("levels 2 (paper: 6)")
+                && err.contains("bounces 3 (paper: 4)"),
+            "{err}"
+        );
+        assert!(!err.contains("bounce mode"), "a fixed count: {err}");
     }
+    // Against another bake, no warning.
+    let r = bake()
+        .arg("stats")
+        .arg(&out)
+        .arg("--against")
+        .arg(&stats)
+        .output()
+        .unwrap();
+    assert!(
+        r.status.success() && r.stderr.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&r.stderr)
+    );
     let r = bake()
         .arg("stats")
         .arg(&out)

@@ -20,6 +20,7 @@ pub mod obj;
 pub mod raycast;
 pub mod sampling;
 pub mod scene;
+pub mod scene_options;
 pub mod sphere_caster;
 pub mod texture;
 
@@ -31,5 +32,6 @@ pub use mesh::{Material, Mesh};
 pub use mesh_caster::MeshCaster;
 pub use raycast::{Hit, RayCaster};
 pub use scene::{load_scene, Geometry, Scene};
+pub use scene_options::{NormalSource, SceneOptions};
 pub use sphere_caster::SphereCaster;
 pub use texture::Texture;

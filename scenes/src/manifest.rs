@@ -5,6 +5,8 @@
 //! source = "../../shared/scenes/cornell_box/CornellBox-Original.obj" # relative to this file, or builtin:NAME
 //! scale = 1.0
 //! viewpoint = [0.0, 1.0, 0.5]     # one interior point the point placement starts from
+//! textures = true                 # false: constant material colours, no texture maps
+//! normals = "vertex"              # or "face": geometric normals, not the mesh's
 //!
 //! [camera]
 //! position = [0.0, 1.0, 3.5]
@@ -40,6 +42,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::SceneError;
 use crate::obj::warn;
 use crate::scene::{Geometry, Scene};
+use crate::scene_options::{NormalSource, SceneOptions};
 
 /// Default camera: right-handed, +Y up, vertical field of view in degrees.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -93,14 +96,22 @@ struct SceneSection {
     #[serde(default = "default_scale")]
     scale: f32,
     viewpoint: Option<[f32; 3]>,
+    /// See [`SceneOptions`].
+    #[serde(default = "default_textures")]
+    textures: bool,
+    #[serde(default)]
+    normals: NormalSource,
 }
 
 fn default_scale() -> f32 {
     1.0
 }
+fn default_textures() -> bool {
+    true
+}
 
 /// Loads a scene manifest (see the module docs). The content hash covers the manifest's
-/// bytes and everything its source was built from.
+/// bytes, everything its source was built from, and the [`SceneOptions`].
 pub fn load_manifest(path: &Path) -> Result<Scene, SceneError> {
     let bytes = std::fs::read(path).map_err(|e| SceneError::io(path, e))?;
     let manifest_error = |message: String| SceneError::Manifest {
@@ -158,9 +169,18 @@ pub fn load_manifest(path: &Path) -> Result<Scene, SceneError> {
             .retain(|w| !w.contains("viewpoint is a guess"));
     }
 
+    let options = SceneOptions {
+        textures: file.scene.textures,
+        normals: file.scene.normals,
+    };
+    if let Geometry::Mesh(mesh) = &mut scene.geometry {
+        options.apply(mesh);
+    }
+
     let mut hasher = xxhash_rust::xxh3::Xxh3::new();
     hasher.update(&bytes);
     hasher.update(&scene.content_hash.to_le_bytes());
+    options.hash_into(&mut hasher);
     scene.content_hash = hasher.digest();
     scene.source = path.display().to_string();
     Ok(scene)

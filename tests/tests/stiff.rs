@@ -162,7 +162,7 @@ fn sphere_albedo_0_99_converges_with_the_bounces_the_bake_chose() {
 #[test]
 fn a_fixed_count_that_misses_the_light_says_how_much() {
     let albedo = 0.99;
-    let r = sphere(albedo, false, None);
+    let r = sphere(albedo, false, Some(4));
     assert_eq!(r.bounces, 4);
     let expected = albedo / (1.0 - albedo) * 0.25;
     let (_, mean) = deviation(&r.coarsest, expected);

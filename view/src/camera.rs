@@ -2,8 +2,13 @@
 //! width x height pixels. Pixel `(px, py)` has its centre at `(px + 0.5, py + 0.5)`, row 0 at
 //! the top of the image. The GPU rasteriser and the CPU reference integrator both use these
 //! definitions, so their images line up pixel for pixel.
+//!
+//! A camera may be jittered ([`Camera::jittered`]): its projection then moves the image by a
+//! sub-pixel offset, so that the rasteriser's sample at a pixel's centre sees the point
+//! `(px + 0.5 + jx, py + 0.5 + jy)` of the unjittered image. Averaging the images of the
+//! offsets of [`subpixel_offsets`] is a box filter over each pixel.
 
-use glam::{Mat4, Vec3};
+use glam::{Mat4, Vec2, Vec3};
 use mlt_format::meta::CameraInfo;
 
 /// A camera in world space.
@@ -15,6 +20,9 @@ pub struct Camera {
     pub fovy_deg: f32,
     pub width: u32,
     pub height: u32,
+    /// Sub-pixel offset `(jx, jy)` of the projection, in pixels, each in `[-0.5, 0.5]`; zero
+    /// for the pixel centres.
+    pub jitter: Vec2,
 }
 
 /// Why a camera is unusable.
@@ -66,7 +74,17 @@ impl Camera {
             fovy_deg,
             width,
             height,
+            jitter: Vec2::ZERO,
         })
+    }
+
+    /// This camera with its projection moved so that pixel centres sample the image at
+    /// `offset` pixels (x right, y down) from them.
+    pub fn jittered(&self, offset: Vec2) -> Camera {
+        Camera {
+            jitter: offset,
+            ..*self
+        }
     }
 
     /// The camera stored in a baked file.
@@ -121,13 +139,26 @@ impl Camera {
     /// The view-projection with reversed depth (near plane `planes.0` at depth 1, far plane
     /// `planes.1` at 0), as the G-buffer draws with it: floats are densest near 0, so reversed
     /// depth spreads their precision evenly over distance, whatever the scene's scale.
+    /// With a [`Camera::jitter`], clip space is translated by the offset (less the offset in
+    /// normalised device coordinates), so that the sample at a pixel centre sees the jittered
+    /// point.
     pub fn reversed_view_proj(&self, planes: (f32, f32)) -> Mat4 {
-        glam::camera::rh::proj::directx::perspective(
+        let proj = glam::camera::rh::proj::directx::perspective(
             self.fovy_deg.to_radians(),
             self.aspect(),
             planes.1,
             planes.0,
-        ) * self.view_matrix()
+        );
+        if self.jitter == Vec2::ZERO {
+            return proj * self.view_matrix();
+        }
+        // NDC x grows to the right and y upward; pixel y grows downward.
+        let shift = Vec3::new(
+            -2.0 * self.jitter.x / self.width as f32,
+            2.0 * self.jitter.y / self.height as f32,
+            0.0,
+        );
+        Mat4::from_translation(shift) * proj * self.view_matrix()
     }
 
     /// Near and far planes that enclose a scene with the given bounds: far beyond its farthest
@@ -138,6 +169,45 @@ impl Camera {
         let far = far.max(f32::MIN_POSITIVE * 1e8);
         (far * 1e-4, far)
     }
+}
+
+/// The `n` sub-pixel offsets of a box-filtered image (pixels, each coordinate in
+/// `[-0.5, 0.5)`): one point in each cell of a `rows x cols` grid over the pixel (`rows` the
+/// largest divisor of `n` not above its square root), placed in its cell by a fixed hash of its
+/// index, so that the offsets are stratified and the same on every run. One sample is the
+/// pixel centre (no offset).
+pub fn subpixel_offsets(n: u32) -> Vec<Vec2> {
+    if n <= 1 {
+        return vec![Vec2::ZERO];
+    }
+    let rows = (1..=n)
+        .filter(|&r| n.is_multiple_of(r) && r * r <= n)
+        .max()
+        .unwrap_or(1);
+    let cols = n / rows;
+    (0..n)
+        .map(|k| {
+            let (col, row) = (k % cols, k / cols);
+            let (u, v) = unit_pair(k);
+            Vec2::new(
+                (col as f32 + u) / cols as f32 - 0.5,
+                (row as f32 + v) / rows as f32 - 0.5,
+            )
+        })
+        .collect()
+}
+
+/// Two numbers in `[0, 1)` from a fixed hash (splitmix64) of `k`.
+fn unit_pair(k: u32) -> (f32, f32) {
+    let mut z = (k as u64)
+        .wrapping_add(1)
+        .wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^= z >> 31;
+    // The top 24 bits of each 32-bit half: exact in f32, below 1.
+    let unit = |bits: u64| ((bits & 0xFFFF_FFFF) >> 8) as f32 / (1u64 << 24) as f32;
+    (unit(z), unit(z >> 32))
 }
 
 /// Parses `x,y,z` (three finite numbers) from the command line.
@@ -221,6 +291,56 @@ mod tests {
         let (r, f) = (ndc(reversed, p), ndc(forward, p));
         assert!((r.x - f.x).abs() < 1e-5 && (r.y - f.y).abs() < 1e-5);
         assert!(r.z > depth_along(8.0).z, "depth decreases with distance");
+    }
+
+    #[test]
+    fn a_jittered_projection_moves_the_image_by_the_offset() {
+        let c = cam();
+        let j = c.jittered(Vec2::new(0.25, -0.375));
+        let (m, mj) = (
+            c.reversed_view_proj((0.1, 100.0)),
+            j.reversed_view_proj((0.1, 100.0)),
+        );
+        let screen = |m: Mat4, p: Vec3| {
+            let clip = m * p.extend(1.0);
+            let ndc = clip.truncate() / clip.w;
+            Vec2::new(
+                (ndc.x + 1.0) * 0.5 * c.width as f32,
+                (1.0 - ndc.y) * 0.5 * c.height as f32,
+            )
+        };
+        // The point seen at (px + 0.5 + jx, py + 0.5 + jy) without jitter lands on the
+        // centre of pixel (px, py) with it.
+        let p = c.position + c.ray_direction(40.5 + 0.25, 60.5 - 0.375) * 4.0;
+        assert!((screen(m, p) - Vec2::new(40.75, 60.125)).length() < 1e-3);
+        assert!((screen(mj, p) - Vec2::new(40.5, 60.5)).length() < 1e-3);
+        assert_eq!(c.jittered(Vec2::ZERO).reversed_view_proj((0.1, 100.0)), m);
+    }
+
+    #[test]
+    fn subpixel_offsets_are_stratified_and_fixed() {
+        assert_eq!(subpixel_offsets(1), vec![Vec2::ZERO]);
+        for (n, rows, cols) in [(4u32, 2u32, 2u32), (16, 4, 4), (6, 2, 3), (7, 1, 7)] {
+            let o = subpixel_offsets(n);
+            assert_eq!(o, subpixel_offsets(n));
+            // Offset k lies in cell (k % cols, k / cols) (up to rounding at the cell's sides).
+            for (k, p) in o.iter().enumerate() {
+                assert!(
+                    p.x >= -0.5 && p.x <= 0.5 && p.y >= -0.5 && p.y <= 0.5,
+                    "{p}"
+                );
+                let (col, row) = ((k as u32 % cols) as f32, (k as u32 / cols) as f32);
+                let cx = (p.x + 0.5) * cols as f32 - col;
+                let cy = (p.y + 0.5) * rows as f32 - row;
+                assert!(
+                    (-1e-5..=1.0 + 1e-5).contains(&cx) && (-1e-5..=1.0 + 1e-5).contains(&cy),
+                    "n = {n}, offset {k} at {p} is not in its cell ({col}, {row})"
+                );
+            }
+        }
+        // The mean offset of a stratified pattern is near the pixel centre.
+        let mean = subpixel_offsets(16).iter().copied().sum::<Vec2>() / 16.0;
+        assert!(mean.length() < 0.1, "{mean}");
     }
 
     #[test]

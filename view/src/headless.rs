@@ -4,14 +4,15 @@
 use std::path::Path;
 
 use glam::Vec3;
+use mlt_format::IndexedBasis;
 use mlt_relight::{Light, StageTimes};
 use serde::Serialize;
 
-use crate::camera::Camera;
+use crate::camera::{subpixel_offsets, Camera};
 use crate::frame::{FrameDriver, Redraw};
 use crate::gpu::context::AdapterReport;
-use crate::gpu::{Buffers, GpuError, RenderTimes};
-use crate::images::ImageError;
+use crate::gpu::{Buffers, Gpu, GpuError, RenderTimes, Renderer};
+use crate::images::{ImageError, RgbImage};
 
 /// Errors of a headless render.
 #[derive(Debug, thiserror::Error)]
@@ -31,6 +32,8 @@ pub struct Timings {
     pub moving_light: bool,
     pub width: u32,
     pub height: u32,
+    /// Sub-pixel samples per pixel of the images ([`box_filtered`]; not of the timed frames).
+    pub spp: u32,
     pub threads: usize,
     /// CPU relighting, milliseconds (medians over frames).
     pub cpu_median_ms: CpuMedians,
@@ -87,13 +90,60 @@ pub fn light_on_path(light: &Light, radius: f32, f: u32, n: u32) -> Light {
     l
 }
 
+/// The buffers of `camera` and `light`, as the renderer holds the lighting now, averaged over
+/// `spp` sub-pixel positions of each pixel ([`subpixel_offsets`]: a box filter over the
+/// pixel). The lighting is the same for every position (it is per light, not per pixel): only
+/// the G-buffer and the passes after it are redrawn with the jittered projection. With one
+/// sample, the image at the pixel centres.
+pub fn box_filtered(
+    gpu: &Gpu,
+    renderer: &mut Renderer,
+    ib: &IndexedBasis,
+    camera: &Camera,
+    light: &Light,
+    spp: u32,
+) -> Result<Buffers, GpuError> {
+    let offsets = subpixel_offsets(spp);
+    let mut sum: Option<Buffers> = None;
+    for &offset in &offsets {
+        renderer.render(gpu, ib, &camera.jittered(offset), light, false)?;
+        let b = renderer.read_buffers(gpu)?;
+        sum = Some(match sum {
+            None => b,
+            Some(mut s) => {
+                add(&mut s.direct, &b.direct);
+                add(&mut s.indirect, &b.indirect);
+                add(&mut s.final_, &b.final_);
+                s
+            }
+        });
+    }
+    let mut s = sum.ok_or_else(|| GpuError::Readback("no sub-pixel sample".into()))?;
+    if offsets.len() > 1 {
+        let k = 1.0 / offsets.len() as f32;
+        for img in [&mut s.direct, &mut s.indirect, &mut s.final_] {
+            img.pixels.iter_mut().flatten().for_each(|v| *v *= k);
+        }
+    }
+    Ok(s)
+}
+
+/// `sum += img`, pixel by pixel.
+fn add(sum: &mut RgbImage, img: &RgbImage) {
+    for (s, p) in sum.pixels.iter_mut().zip(&img.pixels) {
+        s.iter_mut().zip(p).for_each(|(s, p)| *s += p);
+    }
+}
+
 /// Renders `frames` frames (the light moving on [`light_on_path`] when more than one), then
-/// the requested light, and returns the buffers of the latter with median timings.
+/// the requested light, and returns the buffers of the latter, box-filtered over `spp`
+/// sub-pixel positions ([`box_filtered`]), with median timings of the frames.
 pub fn render(
     driver: &mut FrameDriver<'_>,
     camera: &Camera,
     light: &Light,
     frames: u32,
+    spp: u32,
     path_radius: f32,
 ) -> Result<(Buffers, Timings), HeadlessError> {
     let frames = frames.max(1);
@@ -119,7 +169,11 @@ pub fn render(
         driver.draw(camera, light, Redraw::Lighting, false)?;
     }
     let (gpu, ib) = (driver.gpu, driver.ib);
-    let buffers = driver.renderer.read_buffers(gpu)?;
+    let buffers = if spp <= 1 {
+        driver.renderer.read_buffers(gpu)?
+    } else {
+        box_filtered(gpu, driver.renderer, ib, camera, light, spp)?
+    };
     let m = |f: &dyn Fn(&StageTimes) -> f64| median(cpu.iter().map(f).collect());
     let cpu_median_ms = CpuMedians {
         direct: m(&|t| t.direct_ms),
@@ -145,6 +199,7 @@ pub fn render(
         moving_light: moving,
         width: camera.width,
         height: camera.height,
+        spp: spp.max(1),
         threads: rayon::current_num_threads(),
         cpu_median_ms,
         gpu_median_ms,

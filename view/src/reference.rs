@@ -4,12 +4,16 @@
 //!
 //! # What it computes
 //!
-//! Surfaces are Lambertian: outgoing radiance `L = ρ/π · E`. Per pixel the primary ray goes
-//! through the pixel centre ([`Camera::ray_direction`]`(px + 0.5, py + 0.5)`) to the first hit
-//! `x` (shading normal `n`, albedo `ρ`); a pixel whose ray hits nothing is black.
+//! Surfaces are Lambertian: outgoing radiance `L = ρ/π · E`. A pixel's value is the mean over
+//! its area (a box filter, as `view render --spp N`): each path starts with its own primary
+//! ray through a uniformly random point of the pixel ([`Camera::ray_direction`]`(px + u,
+//! py + v)`, `u, v` in `[0, 1)`) to the first hit `x` (shading normal `n`, albedo `ρ`); a
+//! path whose primary ray hits nothing adds black.
 //!
 //! - Direct radiance `ρ/π · E_d(x, n)`, `E_d = I max(0, cos) / d² · V` with one hard shadow ray
-//!   ([`Light::irradiance`] and [`RayCaster::occluded`]). Exact for a point light: no noise.
+//!   ([`Light::irradiance`] and [`RayCaster::occluded`]). Exact for a point light where the
+//!   whole pixel sees one lit surface; the only noise is that of the pixel's coverage at
+//!   edges and shadow boundaries.
 //! - Indirect irradiance `E_i(x, n) = ∫_Ω L(y(ω)) cos θ dω` (bounces ≥ 1, the rendering
 //!   equation of the paper's Eq. 1 for diffuse surfaces with the direct part removed), estimated
 //!   by path tracing with cosine-weighted hemisphere sampling (pdf `cos θ / π`): every sample's
@@ -31,7 +35,7 @@
 //! `Var(A − B) = 2σ²` and `Var((A + B)/2) = σ²/2`, so the noise of the average is
 //! `RMS(A − B) / 2`. [`Noise::rms`] is that, over all pixels, on Rec. 709 luminance;
 //! `reference_noise.exr` holds the signed per-pixel `(A − B) / 2` of the indirect radiance (the
-//! final image has the same noise: the direct part is exact).
+//! final image's noise adds the direct part's, nonzero only at edges).
 //!
 //! # Determinism
 //!
@@ -149,7 +153,8 @@ impl Noise {
 /// The reference images (linear radiance, rows from the top) and how they were made.
 #[derive(Clone, Debug)]
 pub struct ReferenceImages {
-    /// `ρ/π E_d` at the primary hit (exact, one shadow ray).
+    /// `ρ/π E_d` averaged over the pixel (one shadow ray per path; noise-free where the pixel
+    /// sees one lit surface).
     pub direct: RgbImage,
     /// `ρ/π E_i`, the average of the two halves.
     pub indirect: RgbImage,
@@ -158,9 +163,11 @@ pub struct ReferenceImages {
     /// Signed `(A − B) / 2` of the indirect radiance, per pixel: its RMS is the noise of
     /// `indirect` (and of `final_image`).
     pub noise_image: RgbImage,
-    /// Noise of `indirect` (the final image has the same absolute noise).
+    /// Noise of `direct`: zero but at edges and shadow boundaries (the pixel's coverage).
+    pub direct_noise: Noise,
+    /// Noise of `indirect`.
     pub indirect_noise: Noise,
-    /// Noise of `final_image` (absolute noise as `indirect`'s, relative to the final mean).
+    /// Noise of `final_image`: `indirect`'s and the direct part's at edges.
     pub final_noise: Noise,
     pub options: ReferenceOptions,
     /// Wall-clock seconds of the rendering.
@@ -475,16 +482,38 @@ impl Tracer<'_> {
         out
     }
 
-    /// The mean of `n` paths' estimates from `rng` (f64 sums).
-    fn indirect_mean(&self, x: Vec3, ns: Vec3, ng: Vec3, n: u32, rng: &mut Pcg32) -> [f32; 3] {
-        let mut sum = [0.0f64; 3];
+    /// The direct and indirect radiance of `n` paths through uniformly random points of pixel
+    /// `(px, py)` (a box filter over the pixel), each path's primary hit shaded by
+    /// [`Tracer::direct`] and one [`Tracer::indirect_sample`]; a path that hits nothing adds
+    /// black. Means of f64 sums.
+    fn pixel_mean(
+        &self,
+        camera: &Camera,
+        (px, py): (f32, f32),
+        n: u32,
+        rng: &mut Pcg32,
+    ) -> ([f32; 3], [f32; 3]) {
+        let (mut direct, mut indirect) = ([0.0f64; 3], [0.0f64; 3]);
         for _ in 0..n {
-            let s = self.indirect_sample(x, ns, ng, rng);
+            let (u, v) = (rng.next_f32(), rng.next_f32());
+            let dir = camera.ray_direction(px + u, py + v);
+            let Some(hit) = self
+                .caster
+                .intersect(camera.position, dir, 0.0, f32::INFINITY)
+            else {
+                continue;
+            };
+            let (x, ns, ng) = (hit.position, hit.shading_normal, hit.geometric_normal);
+            let ed = self.direct(x, ns, ng);
+            let ei = self.indirect_sample(x, ns, ng, rng);
             for c in 0..3 {
-                sum[c] += s[c] as f64;
+                let brdf = (hit.albedo[c] * std::f32::consts::FRAC_1_PI) as f64;
+                direct[c] += brdf * ed[c] as f64;
+                indirect[c] += brdf * ei[c] as f64;
             }
         }
-        sum.map(|v| (v / n as f64) as f32)
+        let mean = |s: [f64; 3]| s.map(|v| (v / n as f64) as f32);
+        (mean(direct), mean(indirect))
     }
 }
 
@@ -517,23 +546,16 @@ pub fn render_reference_with(
     };
     let (w, h) = (camera.width, camera.height);
     let half = opts.spp / 2;
-    // Per pixel: (rho / pi, direct irradiance, indirect irradiance of halves A and B).
+    // Per pixel: direct and indirect radiance of halves A and B.
     let pixels: Vec<[[f32; 3]; 4]> = (0..w as u64 * h as u64)
         .into_par_iter()
         .map(|idx| {
             let (px, py) = ((idx % w as u64) as f32, (idx / w as u64) as f32);
-            let dir = camera.ray_direction(px + 0.5, py + 0.5);
-            let Some(hit) = caster.intersect(camera.position, dir, 0.0, f32::INFINITY) else {
-                return [[0.0; 3]; 4];
-            };
-            let (x, ns, ng) = (hit.position, hit.shading_normal, hit.geometric_normal);
-            let brdf = hit.albedo.map(|r| r * std::f32::consts::FRAC_1_PI);
-            let ed = tracer.direct(x, ns, ng);
             let mut ra = Pcg32::new(opts.seed, DOMAIN_PIXEL, 2 * idx);
             let mut rb = Pcg32::new(opts.seed, DOMAIN_PIXEL, 2 * idx + 1);
-            let ea = tracer.indirect_mean(x, ns, ng, half, &mut ra);
-            let eb = tracer.indirect_mean(x, ns, ng, half, &mut rb);
-            [brdf, ed, ea, eb]
+            let (da, ia) = tracer.pixel_mean(camera, (px, py), half, &mut ra);
+            let (db, ib) = tracer.pixel_mean(camera, (px, py), half, &mut rb);
+            [da, db, ia, ib]
         })
         .collect();
     let mut direct = RgbImage::new(w, h);
@@ -544,10 +566,10 @@ pub fn render_reference_with(
     let mut half_b = Vec::with_capacity(pixels.len());
     let mut final_a = Vec::with_capacity(pixels.len());
     let mut final_b = Vec::with_capacity(pixels.len());
-    for (k, [brdf, ed, ea, eb]) in pixels.into_iter().enumerate() {
-        let d: [f32; 3] = std::array::from_fn(|c| brdf[c] * ed[c]);
-        let a: [f32; 3] = std::array::from_fn(|c| brdf[c] * ea[c]);
-        let b: [f32; 3] = std::array::from_fn(|c| brdf[c] * eb[c]);
+    let mut direct_a = Vec::with_capacity(pixels.len());
+    let mut direct_b = Vec::with_capacity(pixels.len());
+    for (k, [da, db, a, b]) in pixels.into_iter().enumerate() {
+        let d: [f32; 3] = std::array::from_fn(|c| 0.5 * (da[c] + db[c]));
         let avg: [f32; 3] = std::array::from_fn(|c| 0.5 * (a[c] + b[c]));
         let fin: [f32; 3] = std::array::from_fn(|c| d[c] + avg[c]);
         if !(d.iter().chain(&avg).all(|v| v.is_finite())) {
@@ -562,14 +584,17 @@ pub fn render_reference_with(
         noise_image.pixels[k] = std::array::from_fn(|c| 0.5 * (a[c] - b[c]));
         half_a.push(a);
         half_b.push(b);
-        final_a.push(std::array::from_fn(|c| d[c] + a[c]));
-        final_b.push(std::array::from_fn(|c| d[c] + b[c]));
+        final_a.push(std::array::from_fn(|c| da[c] + a[c]));
+        final_b.push(std::array::from_fn(|c| db[c] + b[c]));
+        direct_a.push(da);
+        direct_b.push(db);
     }
     Ok(ReferenceImages {
         direct,
         indirect,
         final_image,
         noise_image,
+        direct_noise: Noise::from_halves(&direct_a, &direct_b),
         indirect_noise: Noise::from_halves(&half_a, &half_b),
         final_noise: Noise::from_halves(&final_a, &final_b),
         options: *opts,
@@ -616,7 +641,7 @@ pub fn reference_json(r: &ReferenceImages) -> serde_json::Value {
         "noise": {
             "indirect": r.indirect_noise,
             "final": r.final_noise,
-            "direct": {"rms": 0.0, "note": "exact: one shadow ray to the point light"},
+            "direct": r.direct_noise,
         },
         "seconds": r.seconds,
         "threads": r.threads,

@@ -2,8 +2,8 @@
 //! the committed `tests/golden/cornell_final.exr`, so that a change to any stage of the bake,
 //! the relighting or the renderer shows.
 //!
-//! The setup: `builtin:cornell` baked with 4 receiver levels, about 60 level-0 points, 64
-//! gather rays and seed 1; relit on the CPU (8 shadow rays per sender, flattening on the CPU)
+//! The setup: `builtin:cornell` baked with the paper preset (4 bounces), 4 receiver levels,
+//! about 60 level-0 points, 64 gather rays and seed 1; relit on the CPU (8 shadow rays per sender, flattening on the CPU)
 //! with the scene's light; rendered at 96x72 with the file's camera and a 512-pixel shadow map
 //! (`common::render`); the final (direct + indirect) buffer is compared.
 //!
@@ -31,7 +31,7 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use common::small;
-use mlt_bake::BakeOptions;
+use mlt_bake::{BakeOptions, Preset};
 use mlt_view::images::{linear_to_srgb, luminance, ToneMap};
 use mlt_view::{Light, RgbImage};
 
@@ -68,6 +68,7 @@ fn render(name: &str, light: impl Fn(Light) -> Light) -> RgbImage {
     let scene_light = mlt_scenes::load_scene(spec).unwrap().light;
     let light = light(Light::from_desc(&scene_light).unwrap());
     let opts = BakeOptions {
+        preset: Some(Preset::Paper),
         receiver_levels: Some(4),
         coarse_count: Some(60),
         gather_rays: Some(64),

@@ -1,8 +1,9 @@
 //! `view render FILE --out DIR`: the window's rendering without a window, into files:
 //! direct.exr, indirect.exr, final.exr (linear radiance), final.png (tone mapped) and
 //! timings.json; `--frames N` moves the light along a fixed path and reports medians;
-//! `--reference SPP` adds the path-traced reference; `--oracle SPP` adds the basis floor
-//! (`mlt_view::oracle`) into DIR/oracle.
+//! `--spp N` box-filters each pixel over N sub-pixel positions; `--reference SPP` adds the
+//! path-traced reference (box-filtered over the pixel as well); `--oracle SPP` adds the basis
+//! floor (`mlt_view::oracle`) into DIR/oracle.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -34,6 +35,11 @@ pub struct RenderArgs {
     /// medians (the images are of the requested light).
     #[arg(long)]
     pub frames: Option<u32>,
+    /// Sub-pixel positions per pixel of the images, stratified and the same on every run, averaged
+    /// (a box filter over the pixel, as the reference); 1 renders the pixel centres. The
+    /// relighting is done once; only the G-buffer and the passes after it are redrawn.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=1024))]
+    pub spp: u32,
     /// Also render the brute-force path-traced reference with SPP paths per pixel (even; two
     /// independent halves state its noise) into DIR/reference_*.exr, reference.png and
     /// reference.json, for `view compare`.
@@ -82,9 +88,15 @@ fn images(args: &RenderArgs, v: &mut Viewing<'_>) -> Result<Timings> {
             .context("uploading the flattening operator")?;
     }
     let frames = args.frames.unwrap_or(1);
-    let (buffers, mut timings) =
-        headless::render(&mut driver, &v.camera, &v.light, frames, path_radius)
-            .with_context(|| format!("rendering {}", v.path.display()))?;
+    let (buffers, mut timings) = headless::render(
+        &mut driver,
+        &v.camera,
+        &v.light,
+        frames,
+        args.spp,
+        path_radius,
+    )
+    .with_context(|| format!("rendering {}", v.path.display()))?;
     timings.load = Some(*v.relighter.load_stats());
     headless::write_outputs(&args.out, &buffers, &timings)?;
     Ok(timings)
@@ -106,7 +118,8 @@ fn oracle_images(args: &RenderArgs, v: &mut Viewing<'_>, spp: u32) -> Result<()>
         relighter: &mut relighter,
         ib: v.ib,
     };
-    let (buffers, timings) = headless::render(&mut driver, &v.camera, &v.light, 1, 0.0)
+    // The same pixel footprint as the bake's images (--spp), so the two compare pixel by pixel.
+    let (buffers, timings) = headless::render(&mut driver, &v.camera, &v.light, 1, args.spp, 0.0)
         .context("rendering the basis floor")?;
     let dir = args.out.join("oracle");
     headless::write_outputs(&dir, &buffers, &timings)?;
@@ -157,9 +170,10 @@ fn report(args: &RenderArgs, timings: &Timings, load: &LoadStats) {
     let c = &timings.cpu_median_ms;
     let g = &timings.gpu_median_ms;
     eprintln!(
-        "{}x{} on {} ({}): wrote {}/{{direct,indirect,final}}.exr, final.png, timings.json",
+        "{}x{} ({} sub-pixel sample(s) per pixel) on {} ({}): wrote {}/{{direct,indirect,final}}.exr, final.png, timings.json",
         timings.width,
         timings.height,
+        timings.spp,
         timings.adapter.name,
         timings.adapter.backend,
         args.out.display()

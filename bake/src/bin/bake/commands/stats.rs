@@ -1,20 +1,38 @@
 //! `bake stats`: the paper's Table-1 columns of bakes, side by side, optionally against the
-//! paper's row or another bake.
+//! paper's row or another bake. Against a paper row, each bake not made at the paper's
+//! settings (`--preset paper`) is warned about on stderr, with the parameters that differ.
 
 use std::path::Path;
 
 use anyhow::{Context, Result};
+use mlt_bake::params::paper_preset_differences;
 use mlt_bake::table1::{compare_json, compare_text, our_row, paper_row, Table1Row};
-use mlt_format::BakedFile;
+use mlt_format::meta::{TransportMeta, TransportReport};
+use mlt_format::{BakedFile, Meta};
 
 use crate::cli::StatsArgs;
 
 pub fn run(args: &StatsArgs) -> Result<()> {
-    let mut rows = args
+    let loaded = args
         .files
         .iter()
         .map(|f| load_row(f))
         .collect::<Result<Vec<_>>>()?;
+    let against_paper = args
+        .against
+        .as_ref()
+        .is_some_and(|a| a.starts_with("paper:"));
+    let mut rows = Vec::with_capacity(loaded.len() + 1);
+    for (row, differences) in loaded {
+        if against_paper && !differences.is_empty() {
+            eprintln!(
+                "warning: {} was not baked at the paper's settings (--preset paper): {}",
+                row.title,
+                differences.join(", ")
+            );
+        }
+        rows.push(row);
+    }
     if let Some(a) = &args.against {
         let other = match a.strip_prefix("paper:") {
             Some(name) => {
@@ -24,7 +42,7 @@ pub fn run(args: &StatsArgs) -> Result<()> {
                 r.title = format!("paper: {}", r.title);
                 r
             }
-            None => load_row(Path::new(a))?,
+            None => load_row(Path::new(a))?.0,
         };
         rows.push(other);
     }
@@ -37,8 +55,9 @@ pub fn run(args: &StatsArgs) -> Result<()> {
     Ok(())
 }
 
-/// A Table-1 row from a baked file or a `--stats-json` output.
-fn load_row(path: &Path) -> Result<Table1Row> {
+/// A Table-1 row from a baked file or a `--stats-json` output, and how its parameters
+/// differ from the paper's.
+fn load_row(path: &Path) -> Result<(Table1Row, Vec<String>)> {
     if path.extension().is_some_and(|e| e == "json") {
         return load_json_row(path);
     }
@@ -49,13 +68,30 @@ fn load_row(path: &Path) -> Result<Table1Row> {
     let transport = f
         .transport_meta()
         .with_context(|| format!("reading {}", path.display()))?;
+    let report = f
+        .transport_report()
+        .with_context(|| format!("reading {}", path.display()))?;
     let mut row = our_row(&meta, transport.as_ref(), Some(f.file_len()), None, None);
     row.title = path.display().to_string();
-    Ok(row)
+    Ok((row, differences(&meta, &transport, &report)))
 }
 
-/// A Table-1 row from a `--stats-json` output.
-fn load_json_row(path: &Path) -> Result<Table1Row> {
+/// [`paper_preset_differences`] of a bake's metadata.
+fn differences(
+    meta: &Meta,
+    transport: &Option<TransportMeta>,
+    report: &Option<TransportReport>,
+) -> Vec<String> {
+    paper_preset_differences(
+        &meta.params,
+        transport.as_ref().map(|t| &t.params),
+        report.as_ref().map(|r| r.bounce_mode.as_str()),
+    )
+}
+
+/// A Table-1 row from a `--stats-json` output, and how its parameters differ from the
+/// paper's.
+fn load_json_row(path: &Path) -> Result<(Table1Row, Vec<String>)> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     let v: serde_json::Value =
@@ -66,6 +102,8 @@ fn load_json_row(path: &Path) -> Result<Table1Row> {
         serde_json::from_value(v["transport"].clone()).unwrap_or(None);
     let timings: Option<mlt_format::meta::Timings> =
         serde_json::from_value(v["timings"].clone()).ok();
+    let report: Option<TransportReport> =
+        serde_json::from_value(v["report"].clone()).unwrap_or(None);
     let mut row = our_row(
         &meta,
         transport.as_ref(),
@@ -74,5 +112,5 @@ fn load_json_row(path: &Path) -> Result<Table1Row> {
         None,
     );
     row.title = path.display().to_string();
-    Ok(row)
+    Ok((row, differences(&meta, &transport, &report)))
 }

@@ -1,0 +1,64 @@
+//! The `[scene]` options that change what a mesh is made of, for comparisons with renderers
+//! that do not read everything the source holds: `textures = false` keeps each material's
+//! constant colour (MTL `Kd`, glTF base colour factor) and ignores its texture map (MTL
+//! `map_Kd`, glTF base colour texture); `normals = "face"` shades with each triangle's
+//! geometric normal instead of the mesh's vertex normals. Both default to the source as it is.
+//! They are part of the scene's identity: [`SceneOptions::hash_into`] adds them to the
+//! content hash (nothing is added for the defaults, so a manifest without them keeps its hash).
+
+use serde::Deserialize;
+
+use crate::mesh::Mesh;
+
+/// Where shading normals come from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum NormalSource {
+    /// The mesh's vertex normals, interpolated (the geometric normal where it has none).
+    #[default]
+    Vertex,
+    /// Each triangle's geometric normal.
+    Face,
+}
+
+/// The `[scene]` options applied to a loaded mesh.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SceneOptions {
+    /// Whether texture maps modulate the materials' colours.
+    pub textures: bool,
+    pub normals: NormalSource,
+}
+
+impl Default for SceneOptions {
+    fn default() -> Self {
+        SceneOptions {
+            textures: true,
+            normals: NormalSource::Vertex,
+        }
+    }
+}
+
+impl SceneOptions {
+    /// Applies the options to `mesh`: without textures every material keeps its constant
+    /// colour and the mesh holds no texture; with face normals the mesh holds no vertex
+    /// normals (triangles without them shade with their geometric normal).
+    pub fn apply(&self, mesh: &mut Mesh) {
+        if !self.textures {
+            mesh.materials.iter_mut().for_each(|m| m.texture = None);
+            mesh.textures.clear();
+        }
+        if self.normals == NormalSource::Face {
+            mesh.normals.clear();
+        }
+    }
+
+    /// Adds the options that differ from the defaults to a content hash.
+    pub fn hash_into(&self, hasher: &mut xxhash_rust::xxh3::Xxh3) {
+        if !self.textures {
+            hasher.update(b"scene.textures=false");
+        }
+        if self.normals == NormalSource::Face {
+            hasher.update(b"scene.normals=face");
+        }
+    }
+}
