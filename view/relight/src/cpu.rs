@@ -13,8 +13,9 @@
 //!    weights precomputed ([`PullPushOp`]);
 //! 3. `i = S e`, receiver-major in full precision ([`ReceiverLinks`]), skipping senders whose
 //!    light is negligible;
-//! 4. flattening of `i` to one level on the same points (section 4.1) by a precomputed sparse
-//!    operator ([`FlattenOp`]) that holds only the columns of receivers with links.
+//! 4. flattening of `i` to the flat basis (section 4.1: one level on the points the solution
+//!    needs, [`FlatBasis`]) by a precomputed sparse operator ([`FlattenOp`], one row per flat
+//!    point) that holds only the columns of receivers with links.
 //!
 //! The operators are built once, in [`CpuRelighter::new`] (timed in [`LoadStats`]). When the
 //! light has not moved, nothing is recomputed.
@@ -22,7 +23,7 @@
 use std::time::Instant;
 
 use glam::Vec3;
-use mlt_format::flatten::flatten;
+use mlt_format::flat_basis::FlatBasis;
 use mlt_format::links::{ArchivedLinks, LINK_DIM};
 use mlt_format::IndexedBasis;
 use mlt_scenes::RayCaster;
@@ -40,8 +41,10 @@ use crate::relight::{Frame, Relight, StageTimes};
 pub struct LoadStats {
     /// Wall time of [`CpuRelighter::new`], milliseconds.
     pub build_ms: f64,
-    /// Of which the flattening operator.
+    /// Of which the flat basis and the flattening operator.
     pub flatten_build_ms: f64,
+    /// Points of the flat basis (of the hierarchical basis's points).
+    pub flat_points: usize,
     /// Columns and entries of the flattening operator, and its heap bytes.
     pub flatten_columns: usize,
     pub flatten_entries: usize,
@@ -68,7 +71,10 @@ pub struct CpuRelighter<'a> {
     /// Per sender point: whether its direct sample is used (cast rays only there).
     sample_used: Vec<bool>,
     receiver_links: ReceiverLinks,
-    /// `None` only if the operator is too large for 32-bit offsets: then [`flatten`] runs.
+    /// The flat basis the frames' flat coefficients belong to.
+    flat: FlatBasis,
+    /// `None` only if the operator is too large for 32-bit offsets: then
+    /// [`FlatBasis::flatten`] runs.
     flatten_op: Option<FlattenOp>,
     flatten_scratch: FlattenScratch,
     load: LoadStats,
@@ -98,7 +104,7 @@ impl<'a> CpuRelighter<'a> {
     ) -> CpuRelighter<'a> {
         let t0 = Instant::now();
         let sender_levels = sender_levels.min(ib.levels());
-        let ((pull_push, receiver_links), (flatten_op, flatten_build_ms)) = rayon::join(
+        let ((pull_push, receiver_links), (flat, flatten_op, flatten_build_ms)) = rayon::join(
             || {
                 rayon::join(
                     || PullPushOp::build(ib, sender_levels),
@@ -115,14 +121,18 @@ impl<'a> CpuRelighter<'a> {
                         *k = true;
                     }
                 }
-                let op = FlattenOp::build(ib, Some(&keep)).ok();
-                (op, t.elapsed().as_secs_f64() * 1e3)
+                let flat = FlatBasis::build(ib, Some(&keep))
+                    .or_else(|_| FlatBasis::build(ib, None))
+                    .expect("a validated basis has a flat basis");
+                let op = FlattenOp::build(ib, &flat, Some(&keep)).ok();
+                (flat, op, t.elapsed().as_secs_f64() * 1e3)
             },
         );
         let sample_used = pull_push.sample_used();
         let load = LoadStats {
             build_ms: t0.elapsed().as_secs_f64() * 1e3,
             flatten_build_ms,
+            flat_points: flat.len(),
             flatten_columns: flatten_op.as_ref().map_or(0, FlattenOp::columns),
             flatten_entries: flatten_op.as_ref().map_or(0, FlattenOp::entries),
             flatten_bytes: flatten_op.as_ref().map_or(0, FlattenOp::bytes),
@@ -140,6 +150,7 @@ impl<'a> CpuRelighter<'a> {
             pull_push,
             sample_used,
             receiver_links,
+            flat,
             flatten_op,
             flatten_scratch: FlattenScratch::default(),
             load,
@@ -223,6 +234,10 @@ impl<'a> CpuRelighter<'a> {
 }
 
 impl Relight for CpuRelighter<'_> {
+    fn flat_basis(&self) -> &FlatBasis {
+        &self.flat
+    }
+
     fn flatten_operator(&self) -> Option<&FlattenOp> {
         self.flatten_op.as_ref()
     }
@@ -254,7 +269,7 @@ impl Relight for CpuRelighter<'_> {
         let mut i = std::mem::take(&mut self.frame.i);
         i.resize(n, 0.0);
         let mut flat = std::mem::take(&mut self.frame.flat);
-        flat.resize(n, 0.0);
+        flat.resize(self.flat.len() * LINK_DIM, 0.0);
 
         let t = Instant::now();
         let max_e = e.iter().fold(0.0f32, |m, v| m.max(v.abs()));
@@ -272,7 +287,7 @@ impl Relight for CpuRelighter<'_> {
         match &self.flatten_op {
             Some(_) if !self.flatten_on_cpu => flat.clear(),
             Some(op) => op.apply(&i, LINK_DIM, &mut flat, &mut self.flatten_scratch),
-            None => flat = flatten(self.ib, &i, LINK_DIM),
+            None => flat = self.flat.flatten(self.ib, &i, LINK_DIM),
         }
         times.flatten_ms = t.elapsed().as_secs_f64() * 1e3;
 

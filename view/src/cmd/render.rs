@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use mlt_relight::LoadStats;
+use mlt_relight::{LoadStats, Relight};
 use mlt_view::frame::FrameDriver;
 use mlt_view::gpu::mesh::GpuMesh;
 use mlt_view::gpu::{Gpu, Renderer};
@@ -57,14 +57,15 @@ pub fn run(args: &RenderArgs) -> Result<()> {
 fn images(args: &RenderArgs, v: &mut Viewing<'_>) -> Result<Timings> {
     let gpu = Gpu::headless().context("starting the GPU for headless rendering")?;
     let mesh = GpuMesh::from_scene(v.scene);
-    let mut renderer = Renderer::new(&gpu, &mesh, &v.ib.basis, args.gpu.shadow_res)
+    let flat = v.relighter.flat_basis().ib.clone();
+    let mut renderer = Renderer::new(&gpu, &mesh, &flat.basis, args.gpu.shadow_res)
         .context("setting up the renderer")?;
     let path_radius = v.path_radius();
     let mut driver = FrameDriver {
         gpu: &gpu,
         renderer: &mut renderer,
         relighter: &mut v.relighter,
-        ib: v.ib,
+        ib: &flat,
     };
     if args.gpu.flatten.on_gpu(&gpu) {
         driver
