@@ -13,6 +13,9 @@
 //! around it, [`FLAT_RADIUS_FACTOR`] times the distance (Eq. 11's metric) to its
 //! [`FLAT_NEIGHBOURS`]-th nearest flat neighbour, so that a surface point is covered by a
 //! bounded number of functions wherever the set is fine or coarse, without level weights.
+//! Where that leaves a hierarchical point of the surface without a flat function of
+//! appreciable weight (at the rim of a sparse region, on a narrow face), the nearest flat
+//! point's radius grows to cover it ([`HOLE_WEIGHT`]).
 //!
 //! The flat points are stored as a one-level [`Basis`] (Morton order) with an R-tree, and the
 //! index of the hierarchical point each one is.
@@ -29,6 +32,14 @@ pub const FLAT_NEIGHBOURS: usize = 4;
 
 /// Flat radius over the distance to the [`FLAT_NEIGHBOURS`]-th nearest flat point.
 pub const FLAT_RADIUS_FACTOR: f32 = 1.6;
+
+/// A hierarchical point where the flat weights sum to less than this is a hole: the nearest
+/// flat point's radius grows until the point lies at [`HOLE_REACH`] of it.
+pub const HOLE_WEIGHT: f32 = 0.05;
+
+/// The fraction of the grown radius at which a hole's point then lies (weight `K(0.7)`, about
+/// 0.2, times the normals' squared cosine).
+pub const HOLE_REACH: f32 = 0.7;
 
 /// A single-level basis on a subset of the hierarchical points.
 #[derive(Clone, Debug, PartialEq)]
@@ -61,7 +72,8 @@ impl FlatBasis {
         for i in morton_order(&positions) {
             source.push(kept[i as usize]);
         }
-        let radii = density_radii(hier, &source);
+        let mut radii = density_radii(hier, &source);
+        fill_holes(hier, &source, &mut radii);
         Self::from_parts(hier, source, radii)
     }
 
@@ -118,7 +130,14 @@ impl FlatBasis {
             .for_each(|(chunk, out)| {
                 for (k, o) in out.chunks_mut(d).enumerate() {
                     let j = self.source[chunk * 256 + k] as usize;
-                    hier.reconstruct(alpha, dim, 0..hier.levels(), b.positions[j], b.normals[j], o);
+                    hier.reconstruct(
+                        alpha,
+                        dim,
+                        0..hier.levels(),
+                        b.positions[j],
+                        b.normals[j],
+                        o,
+                    );
                 }
             });
         flat
@@ -201,14 +220,8 @@ fn density_radii(hier: &IndexedBasis, source: &[u32]) -> Vec<f32> {
     use rayon::prelude::*;
     let b = &hier.basis;
     let m = source.len();
-    let search = Basis {
-        positions: source.iter().map(|&j| b.positions[j as usize]).collect(),
-        normals: source.iter().map(|&j| b.normals[j as usize]).collect(),
-        radii: source.iter().map(|&j| b.radii[j as usize]).collect(),
-        level_offsets: vec![0, m as u32],
-        disk_radii: vec![1.0],
-    };
-    let tree = RTree::build(&search, 0..m);
+    let hier_radii = source.iter().map(|&j| b.radii[j as usize]).collect();
+    let (search, tree) = search_basis(hier, source, hier_radii);
     (0..m)
         .into_par_iter()
         .map(|i| {
@@ -238,6 +251,64 @@ fn density_radii(hier: &IndexedBasis, source: &[u32]) -> Vec<f32> {
             }
         })
         .collect()
+}
+
+/// The flat points of `source` with `radii`, and their R-tree: with the hierarchical radii,
+/// the candidate search of [`density_radii`] and [`fill_holes`].
+fn search_basis(hier: &IndexedBasis, source: &[u32], radii: Vec<f32>) -> (Basis, RTree) {
+    let b = &hier.basis;
+    let m = source.len();
+    let search = Basis {
+        positions: source.iter().map(|&j| b.positions[j as usize]).collect(),
+        normals: source.iter().map(|&j| b.normals[j as usize]).collect(),
+        radii,
+        level_offsets: vec![0, m as u32],
+        disk_radii: vec![1.0],
+    };
+    let tree = RTree::build(&search, 0..m);
+    (search, tree)
+}
+
+/// Grows flat radii over holes: every hierarchical point (they sample every surface at the
+/// finest spacing) where the flat weights sum to less than [`HOLE_WEIGHT`] makes the nearest
+/// flat point (Eq. 11, among those whose hierarchical support holds it) reach it at
+/// [`HOLE_REACH`] of its radius. Deterministic: the proposals are combined by maximum.
+fn fill_holes(hier: &IndexedBasis, source: &[u32], radii: &mut [f32]) {
+    use rayon::prelude::*;
+    let b = &hier.basis;
+    let (flat, flat_tree) = search_basis(hier, source, radii.to_vec());
+    let hier_radii = source.iter().map(|&j| b.radii[j as usize]).collect();
+    let (search, tree) = search_basis(hier, source, hier_radii);
+    let flat_ib = IndexedBasis {
+        basis: flat,
+        trees: vec![flat_tree],
+    };
+    let grow: Vec<(u32, f32)> = (0..b.len())
+        .into_par_iter()
+        .filter_map(|j| {
+            let (x, n) = (b.positions[j], b.normals[j]);
+            if flat_ib.weight_sum(0, x, n) >= HOLE_WEIGHT {
+                return None;
+            }
+            let mut best = (f32::INFINITY, u32::MAX);
+            tree.for_each_candidate(x, |q| {
+                let qu = q as usize;
+                let d = poisson_distance(x, n, search.positions[qu], search.normals[qu]);
+                if d < best.0 && d <= search.radii[qu] {
+                    best = (d, q);
+                }
+            });
+            (best.1 != u32::MAX).then(|| {
+                let q = best.1 as usize;
+                let d = crate::kernel::squashed_distance(x, search.positions[q], search.normals[q]);
+                (best.1, (d / HOLE_REACH).min(search.radii[q]))
+            })
+        })
+        .collect();
+    for (q, r) in grow {
+        let r0 = &mut radii[q as usize];
+        *r0 = r0.max(r);
+    }
 }
 
 #[cfg(test)]

@@ -25,11 +25,19 @@ fn rel_rmse(a: &RgbImage, reference: &RgbImage) -> f64 {
 
 /// Bakes the built-in Cornell box with `opts`, relights it with the file's light and checks
 /// the flat image of its default view at `w` x `h` against the exact evaluation.
-fn check_cornell(name: &str, opts: BakeOptions, w: u32, h: u32) {
+/// With `check_blotch`, also that the exact image has no pixel darker than a quarter of its
+/// neighbourhood's median (a dark blotch in the hierarchical solution itself).
+fn check_cornell(name: &str, opts: BakeOptions, w: u32, h: u32, check_blotch: bool) {
     let d = common::temp_dir("flat", name);
-    let f = d.join("cornell.mlt");
     let spec = "builtin:cornell";
-    bake_to(&f, spec, opts);
+    // MLT_FLAT_CORNELL names a bake to reuse (written there when missing).
+    let f = match std::env::var_os("MLT_FLAT_CORNELL") {
+        Some(p) if name.starts_with("default") => std::path::PathBuf::from(p),
+        _ => d.join("cornell.mlt"),
+    };
+    if !f.exists() {
+        bake_to(&f, spec, opts);
+    }
     let file = BakedFile::open(&f).unwrap();
     let meta = file.meta().unwrap();
     let ib = file.basis().unwrap();
@@ -67,27 +75,44 @@ fn check_cornell(name: &str, opts: BakeOptions, w: u32, h: u32) {
     let exact = exact_indirect(&ib, &frame.i, &points, w);
     let flat = flat_indirect(&fb, &frame.flat, &points, w);
     let rmse = rel_rmse(&flat, &exact);
-    let max_lum = exact.pixels.iter().map(|p| luminance(*p)).fold(0.0, f32::max);
+    let max_lum = exact
+        .pixels
+        .iter()
+        .map(|p| luminance(*p))
+        .fold(0.0, f32::max);
     let floor = 1e-3 * max_lum;
-    let dark_flat = dark_pixels(&flat, &points, 3, 0.25, floor);
+    // Flattening adds no dark spot: no flat pixel below a quarter of the exact one.
+    let darker: Vec<usize> = (0..flat.pixels.len())
+        .filter(|&k| {
+            let e = luminance(exact.pixels[k]);
+            e > floor && luminance(flat.pixels[k]) < 0.25 * e
+        })
+        .collect();
     let dark_exact = dark_pixels(&exact, &points, 3, 0.25, floor);
     eprintln!(
         "{name}: {} of {} points flat, {surface} surface pixels, coverage mean {mean:.2}, \
          histogram by 4 {histogram:?}, uncovered {uncovered}; flat vs exact relative RMSE \
-         {rmse:.4}; dark pixels flat {} exact {}",
+         {rmse:.4}; flat pixels darker than a quarter of the exact {}; exact pixels darker \
+         than a quarter of their neighbourhood {}",
         fb.len(),
         ib.basis.len(),
-        dark_flat.len(),
+        darker.len(),
         dark_exact.len()
     );
     assert_eq!(uncovered, 0, "surface pixels without a flat function");
     assert!(mean <= 12.0, "mean coverage {mean}");
-    assert!(rmse < 0.02, "flat image differs from the exact one by {rmse}");
     assert!(
-        dark_flat.is_empty(),
-        "dark blotch in the flat image at {:?}",
-        &dark_flat[..dark_flat.len().min(10)]
+        rmse < 0.02,
+        "flat image differs from the exact one by {rmse}"
     );
+    assert!(
+        darker.is_empty(),
+        "flattening darkens pixels {:?}",
+        &darker[..darker.len().min(10)]
+    );
+    if !check_blotch {
+        return;
+    }
     assert!(
         dark_exact.is_empty(),
         "dark blotch in the exact image at {:?}",
@@ -103,13 +128,23 @@ fn flat_image_of_a_small_cornell_bake_matches_the_exact_evaluation() {
         gather_rays: Some(128),
         ..Default::default()
     };
-    check_cornell("small", opts, 80, 60);
+    check_cornell("small", opts, 80, 60, true);
 }
 
 /// The default bake of the built-in Cornell box (the main job's `bake builtin:cornell`), whose
-/// short block showed a black blotch. Slow in debug builds: run with `--ignored`.
+/// short block shows a dark blotch. Slow in debug builds: run with `--ignored`
+/// (`MLT_FLAT_CORNELL=PATH` keeps the bake for the next run).
 #[test]
 #[ignore]
 fn flat_image_of_the_default_cornell_bake_matches_the_exact_evaluation() {
-    check_cornell("default", BakeOptions::default(), 128, 96);
+    check_cornell("default", BakeOptions::default(), 128, 96, false);
+}
+
+/// The blotch itself: the exact evaluation of the default bake's hierarchical solution (Eq. 6)
+/// is dark on the short block's front face, where only the coarse levels hold coefficients.
+/// Fails today (the cause is in the solution, not in the flat basis); slow in debug builds.
+#[test]
+#[ignore]
+fn default_cornell_solution_has_no_dark_blotch() {
+    check_cornell("default-blotch", BakeOptions::default(), 128, 96, true);
 }

@@ -471,8 +471,7 @@ fn gpu_flattening_equals_the_cpu_operator() {
     assert!(!frame.flat.is_empty());
     let gpu = gpu();
     let fb = relighter.flat_basis().clone();
-    let mut renderer =
-        Renderer::new(&gpu, &GpuMesh::from_scene(&scene), &fb.ib.basis, 64).unwrap();
+    let mut renderer = Renderer::new(&gpu, &GpuMesh::from_scene(&scene), &fb.ib.basis, 64).unwrap();
     let op = relighter.flatten_operator().unwrap();
     renderer.enable_gpu_flatten(&gpu, op).unwrap();
     renderer

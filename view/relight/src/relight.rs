@@ -6,8 +6,8 @@
 use serde::Serialize;
 
 use crate::flatten_op::FlattenOp;
-use mlt_format::flat_basis::FlatBasis;
 use crate::light::Light;
+use mlt_format::flat_basis::FlatBasis;
 
 /// Milliseconds per stage of one relit frame.
 #[derive(Clone, Copy, Debug, Default, Serialize)]

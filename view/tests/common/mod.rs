@@ -66,7 +66,9 @@ pub fn render(
     let mut renderer =
         Renderer::new(&gpu, &GpuMesh::from_scene(&scene), &fb.ib.basis, 512).unwrap();
     renderer.set_coefficients(&gpu, &flat);
-    renderer.render(&gpu, &fb.ib, &camera, &light, true).unwrap();
+    renderer
+        .render(&gpu, &fb.ib, &camera, &light, true)
+        .unwrap();
     let buffers = renderer.read_buffers(&gpu).unwrap();
     let gbuffer = renderer.read_gbuffer(&gpu).unwrap();
     let bases = Bases {
