@@ -396,6 +396,26 @@ mod tests {
     }
 
     #[test]
+    fn every_hierarchical_point_is_covered_where_fine_and_coarse_regions_meet() {
+        let ib = plane_basis(4, 3);
+        let n = ib.basis.len();
+        // Links on the finest level in the left half only: fine points there, coarse ones
+        // elsewhere, and a seam between them.
+        let fine = ib.basis.level_range(3);
+        let linked: Vec<bool> = (0..n)
+            .map(|k| {
+                ib.basis.level_of(k) == 0 || (fine.contains(&k) && ib.basis.positions[k][0] < 0.5)
+            })
+            .collect();
+        let fb = FlatBasis::build(&ib, Some(&linked)).unwrap();
+        assert!(fb.len() < n);
+        for j in 0..n {
+            let (x, nn) = (ib.basis.positions[j], ib.basis.normals[j]);
+            assert!(fb.coverage(x, nn) >= 1, "point {j} at {x:?} uncovered");
+        }
+    }
+
+    #[test]
     fn flat_constant_is_exact() {
         let ib = plane_basis(3, 3);
         let fb = FlatBasis::build(&ib, None).unwrap();
