@@ -33,6 +33,8 @@ pub struct FrameDriver<'a> {
     pub gpu: &'a Gpu,
     pub renderer: &'a mut Renderer,
     pub relighter: &'a mut dyn Relight,
+    /// The relighter's flat basis (its one-level points and R-tree: what the renderer culls
+    /// and splats).
     pub ib: &'a IndexedBasis,
 }
 

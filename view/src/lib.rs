@@ -1,10 +1,11 @@
 //! The viewer's library: the camera model, the wgpu renderer (section 4.1), the frame driver
 //! that the window and headless rendering share, the path-traced reference and the image
-//! comparison, on top of the per-frame relighting of `mlt-relight` (section 3.3; its main types
+//! comparison, the exact per-pixel evaluation of the indirect image, on top of the per-frame relighting of `mlt-relight` (section 3.3; its main types
 //! are re-exported here).
 
 pub mod camera;
 pub mod compare;
+pub mod exact;
 pub mod frame;
 pub mod gpu;
 pub mod headless;

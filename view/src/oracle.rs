@@ -13,6 +13,7 @@
 
 use std::time::Instant;
 
+use mlt_format::flat_basis::FlatBasis;
 use mlt_format::links::LINK_DIM;
 use mlt_format::pull_push::{project, ProjectionReport};
 use mlt_format::IndexedBasis;
@@ -90,22 +91,27 @@ pub fn oracle(
 pub struct OracleRelighter<'a> {
     inner: &'a mut dyn Relight,
     alpha: Vec<f32>,
+    flat: FlatBasis,
     op: FlattenOp,
     scratch: FlattenScratch,
     frame: Frame,
 }
 
 impl<'a> OracleRelighter<'a> {
-    /// Builds the flattening operator over every point of `ib`.
+    /// Builds the flat basis and the flattening operator over every point of `ib` (the oracle
+    /// has detail at every level, so no point can be left out).
     pub fn new(
         ib: &IndexedBasis,
         inner: &'a mut dyn Relight,
         alpha: Vec<f32>,
     ) -> Result<OracleRelighter<'a>, mlt_relight::RelightError> {
+        let flat = FlatBasis::build(ib, None)?;
+        let op = FlattenOp::build(ib, &flat, None)?;
         Ok(OracleRelighter {
             inner,
             alpha,
-            op: FlattenOp::build(ib, None)?,
+            flat,
+            op,
             scratch: FlattenScratch::default(),
             frame: Frame::default(),
         })
@@ -113,11 +119,15 @@ impl<'a> OracleRelighter<'a> {
 }
 
 impl Relight for OracleRelighter<'_> {
+    fn flat_basis(&self) -> &FlatBasis {
+        &self.flat
+    }
+
     fn relight(&mut self, light: &Light) -> &Frame {
         let mut frame = self.inner.relight(light).clone();
         frame.i.clone_from(&self.alpha);
         frame.reused = false;
-        frame.flat.resize(self.alpha.len(), 0.0);
+        frame.flat.resize(self.op.points() * LINK_DIM, 0.0);
         self.op
             .apply(&self.alpha, LINK_DIM, &mut frame.flat, &mut self.scratch);
         self.frame = frame;

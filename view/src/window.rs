@@ -96,6 +96,8 @@ struct State {
     config: wgpu::SurfaceConfiguration,
     gpu: Gpu,
     renderer: Renderer,
+    /// The relighter's flat basis (what the renderer culls and splats).
+    flat: IndexedBasis,
     camera: Camera,
     light: Light,
     orbit: bool,
@@ -160,13 +162,14 @@ impl App<'_> {
         };
         surface.configure(&gpu.device, &config);
         let mesh = GpuMesh::from_scene(self.setup.scene);
-        let mut renderer = Renderer::new(&gpu, &mesh, &self.setup.ib.basis, self.setup.shadow_res)?;
+        let flat = self.setup.relighter.flat_basis().ib.clone();
+        let mut renderer = Renderer::new(&gpu, &mesh, &flat.basis, self.setup.shadow_res)?;
         if self.setup.gpu_flatten.unwrap_or(!gpu.is_software()) {
             FrameDriver {
                 gpu: &gpu,
                 renderer: &mut renderer,
                 relighter: &mut *self.setup.relighter,
-                ib: self.setup.ib,
+                ib: &flat,
             }
             .flatten_on_gpu()?;
         }
@@ -180,6 +183,7 @@ impl App<'_> {
             config,
             gpu,
             renderer,
+            flat,
             camera,
             light: self.setup.light,
             orbit: false,
@@ -222,7 +226,7 @@ impl App<'_> {
             gpu: &s.gpu,
             renderer: &mut s.renderer,
             relighter: &mut *self.setup.relighter,
-            ib: self.setup.ib,
+            ib: &s.flat,
         };
         let drawn = driver.draw(&s.camera, &s.light, Redraw::WhenRelit, false)?;
         let times = drawn.gpu;

@@ -8,7 +8,6 @@ use std::process::Command;
 use common::{bake_to, gpu, render, small};
 use glam::Vec3;
 use mlt_bake::BakeOptions;
-use mlt_format::flatten::reconstruct_flat;
 use mlt_format::links::LINK_DIM;
 use mlt_format::BakedFile;
 use mlt_view::gpu::mesh::GpuMesh;
@@ -31,7 +30,7 @@ fn cornell_options() -> BakeOptions {
 
 #[test]
 fn gpu_splatting_equals_the_cpu_reconstruction_of_the_flat_expansion() {
-    let (buffers, g, flat, ib, _) = render(
+    let (buffers, g, flat, bases, _) = render(
         "builtin:cornell",
         cornell_options(),
         None,
@@ -47,9 +46,9 @@ fn gpu_splatting_equals_the_cpu_reconstruction_of_the_flat_expansion() {
         }
         let (x, n) = ([p[0], p[1], p[2]], g.normal[k]);
         let mut v = [0.0f32; LINK_DIM];
-        // No holes: every covered pixel has support in the flat basis (the coarse levels fill
-        // in where the finest has no points).
-        let support = reconstruct_flat(&ib, &flat, LINK_DIM, x, n, &mut v);
+        // No holes: every covered pixel has support in the flat basis (its radii follow the
+        // density of its points, coarse where the finest levels were left out).
+        let support = bases.flat.reconstruct(&flat, LINK_DIM, x, n, &mut v);
         assert_eq!(
             support.unsupported, 0,
             "pixel {k} at {x:?} has no flat support"
@@ -471,7 +470,8 @@ fn gpu_flattening_equals_the_cpu_operator() {
     let frame = relighter.relight(&light).clone();
     assert!(!frame.flat.is_empty());
     let gpu = gpu();
-    let mut renderer = Renderer::new(&gpu, &GpuMesh::from_scene(&scene), &ib.basis, 64).unwrap();
+    let fb = relighter.flat_basis().clone();
+    let mut renderer = Renderer::new(&gpu, &GpuMesh::from_scene(&scene), &fb.ib.basis, 64).unwrap();
     let op = relighter.flatten_operator().unwrap();
     renderer.enable_gpu_flatten(&gpu, op).unwrap();
     renderer

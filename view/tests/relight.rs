@@ -7,7 +7,6 @@ use std::process::Command;
 use common::bake_to;
 use glam::Vec3;
 use mlt_bake::BakeOptions;
-use mlt_format::flatten::flatten;
 use mlt_format::links::LINK_DIM;
 use mlt_format::pull_push::pull_push_levels;
 use mlt_format::BakedFile;
@@ -225,7 +224,7 @@ fn bits(v: &[f32]) -> Vec<u32> {
 
 /// The precomputed operators give what the reference stages give: `e` the same bits as
 /// `pull_push_levels` of the ray-cast samples, `i` the same bits as the stored links' `apply`,
-/// `flat` close to `flatten(i)` (the operator's 16-bit values and dropped values below 1e-3
+/// `flat` close to `FlatBasis::flatten(i)` (the operator's 16-bit values and dropped values below 1e-3
 /// cost about 1e-3, relative); and the same bits for 1 and 2 threads.
 #[test]
 fn precomputed_stages_match_the_reference_stages() {
@@ -244,12 +243,18 @@ fn precomputed_stages_match_the_reference_stages() {
             let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, 4);
             let samples = r.direct(&light);
             let stats = *r.load_stats();
-            (r.relight(&light).clone(), samples, stats)
+            (
+                r.relight(&light).clone(),
+                samples,
+                stats,
+                r.flat_basis().clone(),
+            )
         })
     };
-    let (frame, samples, stats) = run(2);
+    let (frame, samples, stats, fb) = run(2);
     assert!(stats.flatten_entries > 0 && stats.flatten_bytes >= 4 * stats.flatten_entries);
-    // The bake stores each level's points in Morton order, so the product needs no reordering.
+    // The flat basis stores its points in Morton order, so the product needs no reordering;
+    // the bake stores each level's points so too.
     assert!(stats.points_in_morton_order);
     for l in 0..ib.levels() {
         let order = mlt_format::morton::morton_order(&ib.basis.positions[ib.basis.level_range(l)]);
@@ -267,7 +272,7 @@ fn precomputed_stages_match_the_reference_stages() {
     assert_eq!(frame.senders_used, used);
     assert_eq!(bits(&frame.i), bits(&i));
 
-    let reference = flatten(&ib, &i, LINK_DIM);
+    let reference = fb.flatten(&ib, &i, LINK_DIM);
     let scale = reference.iter().fold(0.0f32, |m, v| m.max(v.abs()));
     assert!(scale > 0.0);
     assert_eq!(frame.flat.len(), reference.len());
@@ -290,7 +295,8 @@ fn precomputed_stages_match_the_reference_stages() {
     let rms = (num / den).sqrt();
     assert!(rms < 2e-3, "flat differs by {rms} (relative rms)");
 
-    let (one, _, _) = run(1);
+    let (one, _, _, fb1) = run(1);
+    assert!(fb1 == fb);
     assert_eq!(bits(&one.direct), bits(&frame.direct));
     assert_eq!(bits(&one.flat), bits(&frame.flat));
 }

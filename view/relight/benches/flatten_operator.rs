@@ -13,6 +13,7 @@ use std::sync::OnceLock;
 use std::time::Instant;
 
 use common::Baked;
+use mlt_format::flat_basis::FlatBasis;
 use mlt_format::links::LINK_DIM;
 use mlt_relight::flatten_op::BLOCK_ROWS;
 use mlt_relight::{FlattenOp, FlattenOptions, FlattenScratch, Kernel, ReceiverLinks};
@@ -22,6 +23,8 @@ struct Setup {
     baked: Baked,
     /// Only receivers with links are columns of the operator.
     keep: Vec<bool>,
+    /// The flat basis on the points the solution needs.
+    flat: FlatBasis,
     links: ReceiverLinks,
     /// Direct light at the senders, smooth in space.
     smooth: Vec<f32>,
@@ -49,10 +52,12 @@ fn load() -> anyhow::Result<Setup> {
         })
         .collect();
     let rough: Vec<f32> = (0..senders * 3).map(|k| 1.0 + (k % 7) as f32).collect();
-    let op = FlattenOp::build(ib, Some(&keep))?;
+    let flat = FlatBasis::build(ib, Some(&keep))?;
+    let op = FlattenOp::build(ib, &flat, Some(&keep))?;
     Ok(Setup {
         baked,
         keep,
+        flat,
         links,
         smooth,
         rough,
@@ -112,7 +117,8 @@ fn figures(
     let n = ib.basis.len();
     eprintln!("{name}: {options:?}");
     let t = Instant::now();
-    let op = FlattenOp::build_with(ib, Some(&s.keep), options)?;
+    let op = FlattenOp::build_with(ib, &s.flat, Some(&s.keep), options)?;
+    let rows = s.flat.len();
     let parts = op.parts();
     let blocks = parts.block_offsets.len() - 1;
     eprintln!(
@@ -122,12 +128,12 @@ fn figures(
         op.columns(),
         parts.block_cols.len() as f64 / blocks as f64,
         op.entries(),
-        op.entries() as f64 / n as f64,
+        op.entries() as f64 / rows as f64,
         op.bytes() as f64 / 1e6,
         op.in_point_order()
     );
     let mut i = vec![0.0f32; n * LINK_DIM];
-    let mut flat = vec![0.0f32; i.len()];
+    let mut flat = vec![0.0f32; rows * LINK_DIM];
     let mut scratch = FlattenScratch::default();
     for (pattern, e) in [("smooth", &s.smooth), ("rough", &s.rough)] {
         s.links.apply(e, 0.0, &mut i);
@@ -209,7 +215,7 @@ fn flatten_with(bencher: divan::Bencher, kernel: Kernel) {
     let s = setup();
     let mut i = vec![0.0f32; s.baked.ib.basis.len() * LINK_DIM];
     s.links.apply(&s.smooth, 0.0, &mut i);
-    let mut flat = vec![0.0f32; i.len()];
+    let mut flat = vec![0.0f32; s.flat.len() * LINK_DIM];
     let mut scratch = FlattenScratch::default();
     bencher.bench_local(|| {
         s.op.apply_with(

@@ -18,8 +18,9 @@
 //!    weights precomputed ([`PullPushOp`]);
 //! 3. `i = S e`, receiver-major in full precision ([`ReceiverLinks`]), skipping senders whose
 //!    light is negligible;
-//! 4. flattening of `i` to one level on the same points (section 4.1) by a precomputed sparse
-//!    operator ([`FlattenOp`]) that holds only the columns of receivers with links.
+//! 4. flattening of `i` to the flat basis (section 4.1: one level on the points the solution
+//!    needs, [`FlatBasis`]) by a precomputed sparse operator ([`FlattenOp`], one row per flat
+//!    point) that holds only the columns of receivers with links.
 //!
 //! The operators are built once, in [`CpuRelighter::new`] (timed in [`LoadStats`]). When the
 //! light has not moved, nothing is recomputed.
@@ -27,7 +28,7 @@
 use std::time::Instant;
 
 use glam::Vec3;
-use mlt_format::flatten::flatten;
+use mlt_format::flat_basis::FlatBasis;
 use mlt_format::links::{ArchivedLinks, LINK_DIM};
 use mlt_format::IndexedBasis;
 use mlt_scenes::RayCaster;
@@ -46,8 +47,10 @@ use crate::support_average::{near_weight, SupportAverage};
 pub struct LoadStats {
     /// Wall time of [`CpuRelighter::new`], milliseconds.
     pub build_ms: f64,
-    /// Of which the flattening operator.
+    /// Of which the flat basis and the flattening operator.
     pub flatten_build_ms: f64,
+    /// Points of the flat basis (of the hierarchical basis's points).
+    pub flat_points: usize,
     /// Columns and entries of the flattening operator, and its heap bytes.
     pub flatten_columns: usize,
     pub flatten_entries: usize,
@@ -75,7 +78,10 @@ pub struct CpuRelighter<'a> {
     sample_used: Vec<bool>,
     support: SupportAverage<'a>,
     receiver_links: ReceiverLinks,
-    /// `None` only if the operator is too large for 32-bit offsets: then [`flatten`] runs.
+    /// The flat basis the frames' flat coefficients belong to.
+    flat: FlatBasis,
+    /// `None` only if the operator is too large for 32-bit offsets: then
+    /// [`FlatBasis::flatten`] runs.
     flatten_op: Option<FlattenOp>,
     flatten_scratch: FlattenScratch,
     load: LoadStats,
@@ -109,7 +115,7 @@ impl<'a> CpuRelighter<'a> {
     ) -> CpuRelighter<'a> {
         let t0 = Instant::now();
         let sender_levels = sender_levels.min(ib.levels());
-        let ((pull_push, receiver_links), (flatten_op, flatten_build_ms)) = rayon::join(
+        let ((pull_push, receiver_links), (flat, flatten_op, flatten_build_ms)) = rayon::join(
             || {
                 rayon::join(
                     || PullPushOp::build(ib, sender_levels),
@@ -126,14 +132,18 @@ impl<'a> CpuRelighter<'a> {
                         *k = true;
                     }
                 }
-                let op = FlattenOp::build(ib, Some(&keep)).ok();
-                (op, t.elapsed().as_secs_f64() * 1e3)
+                let flat = FlatBasis::build(ib, Some(&keep))
+                    .or_else(|_| FlatBasis::build(ib, None))
+                    .expect("a validated basis has a flat basis");
+                let op = FlattenOp::build(ib, &flat, Some(&keep)).ok();
+                (flat, op, t.elapsed().as_secs_f64() * 1e3)
             },
         );
         let sample_used = pull_push.sample_used();
         let load = LoadStats {
             build_ms: t0.elapsed().as_secs_f64() * 1e3,
             flatten_build_ms,
+            flat_points: flat.len(),
             flatten_columns: flatten_op.as_ref().map_or(0, FlattenOp::columns),
             flatten_entries: flatten_op.as_ref().map_or(0, FlattenOp::entries),
             flatten_bytes: flatten_op.as_ref().map_or(0, FlattenOp::bytes),
@@ -152,6 +162,7 @@ impl<'a> CpuRelighter<'a> {
             sample_used,
             support: SupportAverage::new(ib, pull_push_points(ib, sender_levels)),
             receiver_links,
+            flat,
             flatten_op,
             flatten_scratch: FlattenScratch::default(),
             load,
@@ -314,6 +325,10 @@ fn pull_push_points(ib: &IndexedBasis, levels: usize) -> usize {
 }
 
 impl Relight for CpuRelighter<'_> {
+    fn flat_basis(&self) -> &FlatBasis {
+        &self.flat
+    }
+
     fn flatten_operator(&self) -> Option<&FlattenOp> {
         self.flatten_op.as_ref()
     }
@@ -345,7 +360,7 @@ impl Relight for CpuRelighter<'_> {
         let mut i = std::mem::take(&mut self.frame.i);
         i.resize(n, 0.0);
         let mut flat = std::mem::take(&mut self.frame.flat);
-        flat.resize(n, 0.0);
+        flat.resize(self.flat.len() * LINK_DIM, 0.0);
 
         let t = Instant::now();
         let max_e = e.iter().fold(0.0f32, |m, v| m.max(v.abs()));
@@ -363,7 +378,7 @@ impl Relight for CpuRelighter<'_> {
         match &self.flatten_op {
             Some(_) if !self.flatten_on_cpu => flat.clear(),
             Some(op) => op.apply(&i, LINK_DIM, &mut flat, &mut self.flatten_scratch),
-            None => flat = flatten(self.ib, &i, LINK_DIM),
+            None => flat = self.flat.flatten(self.ib, &i, LINK_DIM),
         }
         times.flatten_ms = t.elapsed().as_secs_f64() * 1e3;
 

@@ -7,6 +7,7 @@ use serde::Serialize;
 
 use crate::flatten_op::FlattenOp;
 use crate::light::Light;
+use mlt_format::flat_basis::FlatBasis;
 
 /// Milliseconds per stage of one relit frame.
 #[derive(Clone, Copy, Debug, Default, Serialize)]
@@ -28,8 +29,9 @@ pub struct Frame {
     pub e: Vec<f32>,
     /// Receiver coefficients `i` of indirect vector irradiance (9 per point).
     pub i: Vec<f32>,
-    /// Flat coefficients (9 per point, all points of all levels), as
-    /// [`mlt_format::flatten::flatten`] of `i` computes them up to rounding; empty when
+    /// Flat coefficients (9 per flat point), as
+    /// [`mlt_format::flat_basis::FlatBasis::flatten`] of `i` computes them up to rounding (one
+    /// `LINK_DIM` group per flat point); empty when
     /// flattening is left to the GPU ([`crate::CpuRelighter::flatten_on_cpu`]).
     pub flat: Vec<f32>,
     pub times: StageTimes,
@@ -48,6 +50,9 @@ pub struct Frame {
 pub trait Relight {
     /// The lighting for `light`; recomputed only when the light changed.
     fn relight(&mut self, light: &Light) -> &Frame;
+
+    /// The flat basis whose coefficients `Frame::flat` holds (what a renderer splats).
+    fn flat_basis(&self) -> &FlatBasis;
 
     /// The precomputed flattening operator, for a renderer that flattens on the GPU.
     fn flatten_operator(&self) -> Option<&FlattenOp> {

@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use mlt_relight::LoadStats;
+use mlt_relight::{LoadStats, Relight};
 use mlt_view::frame::FrameDriver;
 use mlt_view::gpu::mesh::GpuMesh;
 use mlt_view::gpu::{Gpu, Renderer};
@@ -73,14 +73,15 @@ pub fn run(args: &RenderArgs) -> Result<()> {
 fn images(args: &RenderArgs, v: &mut Viewing<'_>) -> Result<Timings> {
     let gpu = Gpu::headless().context("starting the GPU for headless rendering")?;
     let mesh = GpuMesh::from_scene(v.scene);
-    let mut renderer = Renderer::new(&gpu, &mesh, &v.ib.basis, args.gpu.shadow_res)
+    let flat = v.relighter.flat_basis().ib.clone();
+    let mut renderer = Renderer::new(&gpu, &mesh, &flat.basis, args.gpu.shadow_res)
         .context("setting up the renderer")?;
     let path_radius = v.path_radius();
     let mut driver = FrameDriver {
         gpu: &gpu,
         renderer: &mut renderer,
         relighter: &mut v.relighter,
-        ib: v.ib,
+        ib: &flat,
     };
     if args.gpu.flatten.on_gpu(&gpu) {
         driver
@@ -108,15 +109,16 @@ fn oracle_images(args: &RenderArgs, v: &mut Viewing<'_>, spp: u32) -> Result<()>
     let o = oracle(v.ib, v.caster, &v.light, &opts).context("path tracing the basis floor")?;
     let gpu = Gpu::headless().context("starting the GPU for headless rendering")?;
     let mesh = GpuMesh::from_scene(v.scene);
-    let mut renderer = Renderer::new(&gpu, &mesh, &v.ib.basis, args.gpu.shadow_res)
-        .context("setting up the renderer")?;
     let mut relighter = OracleRelighter::new(v.ib, &mut v.relighter, o.alpha)
         .context("building the flattening operator over every point")?;
+    let flat = relighter.flat_basis().ib.clone();
+    let mut renderer = Renderer::new(&gpu, &mesh, &flat.basis, args.gpu.shadow_res)
+        .context("setting up the renderer")?;
     let mut driver = FrameDriver {
         gpu: &gpu,
         renderer: &mut renderer,
         relighter: &mut relighter,
-        ib: v.ib,
+        ib: &flat,
     };
     // The same pixel footprint as the bake's images (--spp), so the two compare pixel by pixel.
     let (buffers, timings) = headless::render(&mut driver, &v.camera, &v.light, 1, args.spp, 0.0)

@@ -17,7 +17,8 @@ pub struct GpuFlatten {
     pipeline: wgpu::ComputePipeline,
     bind_group: wgpu::BindGroup,
     hier: wgpu::Buffer,
-    points: usize,
+    /// Hierarchical points read (`LINK_DIM` coefficients each).
+    hier_points: usize,
     groups: (u32, u32),
     /// Bytes uploaded for the operator.
     pub bytes: u64,
@@ -41,15 +42,16 @@ fn storage(gpu: &Gpu, label: &str, data: &[u8]) -> wgpu::Buffer {
 }
 
 impl GpuFlatten {
-    /// Uploads `op` for `points` points; the pass writes `LINK_DIM` floats per point into
-    /// `output` (a storage buffer of at least that size).
+    /// Uploads `op`; the pass writes `LINK_DIM` floats per flat point into `output` (a
+    /// storage buffer of at least that size).
     pub fn new(gpu: &Gpu, op: &FlattenOp, output: &wgpu::Buffer) -> Result<GpuFlatten, GpuError> {
         let device = &gpu.device;
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let parts = op.parts();
         let points = op.points();
         let max_binding = device.limits().max_storage_buffer_binding_size as usize;
-        let largest = 4 * parts.entries.len().max(points * LINK_DIM);
+        let hier_points = op.hier_points();
+        let largest = 4 * parts.entries.len().max(points.max(hier_points) * LINK_DIM);
         if largest > max_binding {
             return Err(GpuError::Validation(format!(
                 "the flattening operator needs a {largest}-byte storage buffer; the adapter allows {max_binding}"
@@ -74,7 +76,7 @@ impl GpuFlatten {
         let order = storage(gpu, "flatten order", bytemuck::cast_slice(parts.order));
         let hier = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("hierarchical coefficients"),
-            size: (points.max(1) * LINK_DIM * 4) as u64,
+            size: (hier_points.max(1) * LINK_DIM * 4) as u64,
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
@@ -127,16 +129,16 @@ impl GpuFlatten {
             pipeline,
             bind_group,
             hier,
-            points,
+            hier_points,
             groups,
             bytes,
         })
     }
 
-    /// Uploads the hierarchical coefficients `i` (`LINK_DIM` per point) and records the pass
-    /// into `encoder`.
+    /// Uploads the hierarchical coefficients `i` (`LINK_DIM` per hierarchical point) and
+    /// records the pass into `encoder`.
     pub fn encode(&self, gpu: &Gpu, i: &[f32], encoder: &mut wgpu::CommandEncoder) {
-        let n = self.points * LINK_DIM;
+        let n = self.hier_points * LINK_DIM;
         if n == 0 || i.len() < n {
             return;
         }

@@ -1,9 +1,8 @@
-//! The buffers several passes bind: the scene's vertices, the per-frame globals, the basis
-//! points (position, radius, normal, level and the level's weight factor in the flat basis),
-//! their flat coefficients and the list of points that survive culling.
+//! The buffers several passes bind: the scene's vertices, the per-frame globals, the flat
+//! basis's points (position, flat radius, normal), their flat coefficients and the list of
+//! points that survive culling.
 
 use bytemuck::{Pod, Zeroable};
-use mlt_format::flatten::flat_level_factor;
 use mlt_format::links::LINK_DIM;
 use mlt_format::Basis;
 use wgpu::util::DeviceExt;
@@ -17,7 +16,7 @@ use super::uniforms::Globals;
 struct PointGpu {
     pos_r: [f32; 4],
     normal_level: [f32; 4],
-    /// x: the level's weight factor in the flat basis (`flat_level_factor`).
+    /// Unused padding (the flat basis has one level: every weight counts alike).
     factor: [f32; 4],
 }
 
@@ -31,9 +30,9 @@ pub struct SceneBuffers {
     pub globals: wgpu::Buffer,
     pub globals_layout: wgpu::BindGroupLayout,
     pub globals_bg: wgpu::BindGroup,
-    /// One `PointGpu` per basis point.
+    /// One `PointGpu` per flat basis point.
     pub points: wgpu::Buffer,
-    /// `LINK_DIM` flat coefficients per basis point.
+    /// `LINK_DIM` flat coefficients per flat basis point.
     pub coefficients: wgpu::Buffer,
     /// Indices of the points to splat.
     pub visible: wgpu::Buffer,
@@ -94,7 +93,6 @@ impl SceneBuffers {
 }
 
 fn point_buffer(device: &wgpu::Device, basis: &Basis) -> wgpu::Buffer {
-    let levels = basis.levels();
     let pts: Vec<PointGpu> = (0..basis.len())
         .map(|j| {
             let p = basis.positions[j];
@@ -102,7 +100,7 @@ fn point_buffer(device: &wgpu::Device, basis: &Basis) -> wgpu::Buffer {
             PointGpu {
                 pos_r: [p[0], p[1], p[2], basis.radii[j]],
                 normal_level: [nn[0], nn[1], nn[2], basis.level_of(j) as f32],
-                factor: [flat_level_factor(basis.level_of(j), levels), 0.0, 0.0, 0.0],
+                factor: [1.0, 0.0, 0.0, 0.0],
             }
         })
         .collect();

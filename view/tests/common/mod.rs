@@ -38,7 +38,7 @@ pub fn render(
     light: Option<Light>,
     camera: impl Fn(&Camera) -> Camera,
     name: &str,
-) -> (Buffers, GBuffer, Vec<f32>, mlt_format::IndexedBasis, Light) {
+) -> (Buffers, GBuffer, Vec<f32>, Bases, Light) {
     let d = temp_dir("render", name);
     let f = d.join("scene.mlt");
     bake_to(&f, spec, opts);
@@ -59,14 +59,32 @@ pub fn render(
         tm.params.sender_levels as usize,
         8,
     );
-    let flat = relighter.relight(&light).flat.clone();
+    let frame = relighter.relight(&light).clone();
+    let fb = relighter.flat_basis().clone();
+    let flat = frame.flat;
     let gpu = gpu();
-    let mut renderer = Renderer::new(&gpu, &GpuMesh::from_scene(&scene), &ib.basis, 512).unwrap();
+    let mut renderer =
+        Renderer::new(&gpu, &GpuMesh::from_scene(&scene), &fb.ib.basis, 512).unwrap();
     renderer.set_coefficients(&gpu, &flat);
-    renderer.render(&gpu, &ib, &camera, &light, true).unwrap();
+    renderer
+        .render(&gpu, &fb.ib, &camera, &light, true)
+        .unwrap();
     let buffers = renderer.read_buffers(&gpu).unwrap();
     let gbuffer = renderer.read_gbuffer(&gpu).unwrap();
-    (buffers, gbuffer, flat, ib, light)
+    let bases = Bases {
+        flat: fb,
+        hier: ib,
+        i: frame.i,
+    };
+    (buffers, gbuffer, flat, bases, light)
+}
+
+/// The bases of a render: the flat one splatted and the hierarchical one with the receivers'
+/// coefficients `i` it was flattened from.
+pub struct Bases {
+    pub flat: mlt_format::flat_basis::FlatBasis,
+    pub hier: mlt_format::IndexedBasis,
+    pub i: Vec<f32>,
 }
 
 /// The camera `c` at `w` x `h` pixels.

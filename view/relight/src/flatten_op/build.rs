@@ -2,6 +2,7 @@
 //! normalised per level (Eq. 2) and quantised to 16 bits keeping their sum, then the rows in
 //! storage order, in blocks sharing a table of local columns.
 
+use mlt_format::flat_basis::FlatBasis;
 use mlt_format::morton::morton_order;
 use mlt_format::shepard::{IndexedBasis, MIN_WEIGHT_SUM};
 use rayon::prelude::*;
@@ -79,21 +80,33 @@ struct Rows {
 }
 
 impl FlattenOp {
-    /// Builds the default operator ([`FlattenOptions::default`]) over all levels of `ib`, in
-    /// parallel (same result for any thread count). With `keep`, only the columns `k` with
-    /// `keep[k]` are stored; a product then treats the coefficients of the others as zero.
-    pub fn build(ib: &IndexedBasis, keep: Option<&[bool]>) -> Result<FlattenOp, RelightError> {
-        FlattenOp::build_with(ib, keep, FlattenOptions::default())
+    /// Builds the default operator ([`FlattenOptions::default`]) from all levels of `ib` to
+    /// the flat points of `flat` (one row each), in parallel (same result for any thread
+    /// count). With `keep`, only the columns `k` with `keep[k]` are stored; a product then
+    /// treats the coefficients of the others as zero.
+    pub fn build(
+        ib: &IndexedBasis,
+        flat: &FlatBasis,
+        keep: Option<&[bool]>,
+    ) -> Result<FlattenOp, RelightError> {
+        FlattenOp::build_with(ib, flat, keep, FlattenOptions::default())
     }
 
     /// [`FlattenOp::build`] with chosen options.
     pub fn build_with(
         ib: &IndexedBasis,
+        flat: &FlatBasis,
         keep: Option<&[bool]>,
         options: FlattenOptions,
     ) -> Result<FlattenOp, RelightError> {
         let b = &ib.basis;
         let n = b.len();
+        let m = flat.len();
+        if flat.source.iter().any(|&j| j as usize >= n) {
+            return Err(RelightError::FlattenOperator(
+                "flat points outside the basis".into(),
+            ));
+        }
         if let Some(keep) = keep {
             if keep.len() != n {
                 return Err(RelightError::FlattenOperator(format!(
@@ -102,7 +115,7 @@ impl FlattenOp {
                 )));
             }
         }
-        let blocks = quantised_rows(ib, keep, options.drop_below.max(0.0));
+        let blocks = quantised_rows(ib, flat, keep, options.drop_below.max(0.0));
         let total: usize = blocks.iter().map(|rows| rows.ks.len()).sum();
         if total >= u32::MAX as usize {
             return Err(RelightError::FlattenOperator(format!(
@@ -110,7 +123,7 @@ impl FlattenOp {
             )));
         }
         // Where each point's row starts in its build block.
-        let mut row_at = Vec::with_capacity(n);
+        let mut row_at = Vec::with_capacity(m);
         for (blk, rows) in blocks.iter().enumerate() {
             let mut at = 0usize;
             for &c in &rows.counts {
@@ -118,8 +131,8 @@ impl FlattenOp {
                 at += c as usize;
             }
         }
-        let (order, identity) = storage_order(ib);
-        let mut position = vec![0u32; n];
+        let (order, identity) = storage_order(flat);
+        let mut position = vec![0u32; m];
         for (pos, &j) in order.iter().enumerate() {
             position[j as usize] = pos as u32;
         }
@@ -130,7 +143,8 @@ impl FlattenOp {
         };
         let packed = pack_blocks(n, &order, total, row)?;
         Ok(FlattenOp {
-            points: n,
+            points: m,
+            hier_points: n,
             columns: packed.columns,
             position,
             identity,
@@ -143,12 +157,17 @@ impl FlattenOp {
     }
 }
 
-/// Every point's row (Eq. 6: the normalised weights `B^l_k(p_j)` of each level with support
-/// at `p_j`, Eq. 2), quantised per level, in blocks of [`BUILD_BLOCK`] points computed in
-/// parallel. Only the columns `k` with `keep[k]` (all without `keep`) are stored.
-fn quantised_rows(ib: &IndexedBasis, keep: Option<&[bool]>, drop_below: f64) -> Vec<Rows> {
+/// Every flat point's row (Eq. 6: the normalised weights `B^l_k(p_j)` of each level with
+/// support at `p_j`, Eq. 2), quantised per level, in blocks of [`BUILD_BLOCK`] points computed
+/// in parallel. Only the columns `k` with `keep[k]` (all without `keep`) are stored.
+fn quantised_rows(
+    ib: &IndexedBasis,
+    flat: &FlatBasis,
+    keep: Option<&[bool]>,
+    drop_below: f64,
+) -> Vec<Rows> {
     let b = &ib.basis;
-    let n = b.len();
+    let n = flat.len();
     let levels = ib.levels();
     let kept = |k: usize| keep.is_none_or(|m| m[k]);
     (0..n.div_ceil(BUILD_BLOCK))
@@ -159,7 +178,8 @@ fn quantised_rows(ib: &IndexedBasis, keep: Option<&[bool]>, drop_below: f64) -> 
             let mut level: Vec<(u32, f32)> = Vec::new();
             let mut group: Vec<(u32, f64)> = Vec::new();
             let mut order = Vec::new();
-            for j in range {
+            for i in range {
+                let j = flat.source[i] as usize;
                 let (x, nj) = (b.positions[j], b.normals[j]);
                 let before = rows.ks.len();
                 for l in 0..levels {
@@ -191,12 +211,12 @@ fn quantised_rows(ib: &IndexedBasis, keep: Option<&[bool]>, drop_below: f64) -> 
         .collect()
 }
 
-/// Storage order: each level's points in Morton order (the bake stores them so: then this is
-/// the identity, the second value, and the rows need no reordering).
-fn storage_order(ib: &IndexedBasis) -> (Vec<u32>, bool) {
-    let b = &ib.basis;
+/// Storage order: the flat points in Morton order ([`FlatBasis::build`] stores them so: then
+/// this is the identity, the second value, and the rows need no reordering).
+fn storage_order(flat: &FlatBasis) -> (Vec<u32>, bool) {
+    let b = &flat.ib.basis;
     let mut order = Vec::with_capacity(b.len());
-    for l in 0..ib.levels() {
+    for l in 0..b.levels() {
         let range = b.level_range(l);
         order.extend(
             morton_order(&b.positions[range.clone()])

@@ -260,14 +260,14 @@ impl FlattenOp {
 
 #[cfg(test)]
 mod tests {
-    use super::super::tests::{coefficients, max_diff};
+    use super::super::tests::{all, coefficients, max_diff};
     use super::*;
     use mlt_format::test_support::plane_basis;
 
     #[test]
     fn kernels_agree() {
         let ib = plane_basis(5, 3);
-        let op = FlattenOp::build(&ib, None).unwrap();
+        let op = FlattenOp::build(&ib, &all(&ib), None).unwrap();
         #[cfg_attr(not(target_arch = "x86_64"), allow(unused_mut))]
         let mut kernels = vec![Kernel::Portable];
         #[cfg(target_arch = "x86_64")]

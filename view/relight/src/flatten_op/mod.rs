@@ -1,16 +1,16 @@
 //! A precomputed sparse flattening operator (section 4.1): the matrix that maps hierarchical
-//! coefficients `alpha` to flat coefficients `c_j = F_L(p_j) = sum_l sum_{k in X_l}
-//! alpha_k B^l_k(p_j)` (Eq. 6, with the per-level Shepard basis of Eq. 2), so that the
-//! per-frame flattening is one sparse product instead of `levels` R-tree queries per point
-//! ([`mlt_format::flatten::flatten`] is the reference).
+//! coefficients `alpha` to the coefficients of the flat basis
+//! ([`mlt_format::flat_basis::FlatBasis`]), `c_j = F_L(p_j) = sum_l sum_{k in X_l}
+//! alpha_k B^l_k(p_j)` (Eq. 6, with the per-level Shepard basis of Eq. 2) at each flat point
+//! `p_j`, one row per flat point, so that the per-frame flattening is one sparse product
+//! instead of `levels` R-tree queries per point ([`FlatBasis::flatten`] is the reference).
 //!
 //! The product streams millions of entries per frame (tens per point), so the layout is chosen
 //! for memory traffic and cache use:
 //!
-//! - Rows (flat points) are stored level by level, each level's points in Morton order
-//!   ([`mlt_format::morton`]). The bake stores its points in that order, so for its files the
-//!   storage order is the point order and rows are written in place; files with another order
-//!   cost one reordering pass per product. Rows are cut into blocks of [`BLOCK_ROWS`] rows.
+//! - Rows (flat points) are stored in Morton order ([`mlt_format::morton`]). The flat basis
+//!   stores its points in that order, so the storage order is the point order and rows are
+//!   written in place; flat bases in another order cost one reordering pass per product. Rows are cut into blocks of [`BLOCK_ROWS`] rows.
 //!   Each block lists the hierarchical points its rows read (its local columns, a few hundred,
 //!   in ascending order); a product first copies their coefficients into a small table that
 //!   stays in L1 cache, then every entry reads from that table.
@@ -38,6 +38,8 @@
 mod build;
 mod kernels;
 
+#[cfg(doc)]
+use mlt_format::flat_basis::FlatBasis;
 use rayon::prelude::*;
 
 pub use kernels::Kernel;
@@ -82,8 +84,10 @@ pub const DEFAULT_DROP_BELOW: f64 = 1e-3;
 /// The flattening operator `c = F alpha`.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct FlattenOp {
-    /// Number of flat (and hierarchical) points.
+    /// Number of flat points (rows).
     points: usize,
+    /// Number of hierarchical points (the length of `alpha`, in points).
+    hier_points: usize,
     /// Number of distinct hierarchical points read.
     columns: usize,
     /// Flat points in storage order (a permutation of `0..points`).
@@ -119,9 +123,14 @@ pub struct FlattenScratch {
 }
 
 impl FlattenOp {
-    /// Number of points (flat and hierarchical).
+    /// Number of flat points (rows).
     pub fn points(&self) -> usize {
         self.points
+    }
+
+    /// Number of hierarchical points the product reads coefficients of.
+    pub fn hier_points(&self) -> usize {
+        self.hier_points
     }
 
     /// Number of distinct hierarchical points read.
@@ -134,8 +143,8 @@ impl FlattenOp {
         self.entries.len()
     }
 
-    /// True when the storage order is the point order (the basis stores each level's points
-    /// in Morton order, as the bake does): products then need no reordering pass.
+    /// True when the storage order is the flat point order (Morton order, as
+    /// [`FlatBasis::build`] stores them): products then need no reordering pass.
     pub fn in_point_order(&self) -> bool {
         self.identity
     }
@@ -165,8 +174,9 @@ impl FlattenOp {
             + self.entries.len())
     }
 
-    /// `flat = F alpha` with `dim` floats per point: `alpha.len() == flat.len() == points *
-    /// dim`; `scratch` keeps its buffers for the next call. Panics on other lengths.
+    /// `flat = F alpha` with `dim` floats per point: `alpha.len() == hier_points * dim`,
+    /// `flat.len() == points * dim`; `scratch` keeps its buffers for the next call. Panics on
+    /// other lengths.
     pub fn apply(&self, alpha: &[f32], dim: usize, flat: &mut [f32], scratch: &mut FlattenScratch) {
         self.apply_with(Kernel::detect(), alpha, dim, flat, scratch);
     }
@@ -181,7 +191,7 @@ impl FlattenOp {
         flat: &mut [f32],
         scratch: &mut FlattenScratch,
     ) {
-        assert!(alpha.len() == self.points * dim && flat.len() == self.points * dim);
+        assert!(alpha.len() == self.hier_points * dim && flat.len() == self.points * dim);
         assert!(kernel.supported(), "this CPU cannot run {kernel:?}");
         if dim == 0 {
             return;
@@ -223,10 +233,15 @@ impl FlattenOp {
 pub(super) mod tests {
     use super::kernels::TASK_BLOCKS;
     use super::*;
-    use mlt_format::flatten::flatten;
+    use mlt_format::flat_basis::FlatBasis;
     use mlt_format::pull_push::project;
     use mlt_format::shepard::{IndexedBasis, MIN_WEIGHT_SUM};
     use mlt_format::test_support::plane_basis;
+
+    /// The flat basis on every point of `ib`.
+    pub(super) fn all(ib: &IndexedBasis) -> FlatBasis {
+        FlatBasis::build(ib, None).unwrap()
+    }
 
     /// Coefficients of a smooth function, 9 per point, with some points zeroed.
     pub(super) fn coefficients(ib: &IndexedBasis, dim: usize) -> Vec<f32> {
@@ -262,7 +277,7 @@ pub(super) mod tests {
     /// value is within `1/QUANTUM` of the exact one, so a row errs by at most its entry count
     /// times the largest coefficient over `QUANTUM`, plus float rounding.
     fn assert_within_quantisation(op: &FlattenOp, alpha: &[f32], flat: &[f32], reference: &[f32]) {
-        let dim = alpha.len() / op.points();
+        let dim = alpha.len() / op.hier_points();
         let largest = alpha.iter().fold(0.0f32, |m, v| m.max(v.abs()));
         for (pos, &j) in op.order.iter().enumerate() {
             let bound = op.row(pos).len() as f32 * largest / QUANTUM as f32 + 1e-5 * largest;
@@ -279,11 +294,13 @@ pub(super) mod tests {
     #[test]
     fn operator_equals_flatten_within_quantisation() {
         let ib = plane_basis(4, 3);
-        let op = FlattenOp::build_with(&ib, None, FlattenOptions::EXACT).unwrap();
+        let fb = all(&ib);
+        let op = FlattenOp::build_with(&ib, &fb, None, FlattenOptions::EXACT).unwrap();
         assert_eq!(op.columns(), ib.basis.len());
+        assert!(op.in_point_order());
         for dim in [1, 3, 9, 4] {
             let alpha = coefficients(&ib, dim);
-            let reference = flatten(&ib, &alpha, dim);
+            let reference = fb.flatten(&ib, &alpha, dim);
             let mut flat = vec![f32::NAN; alpha.len()];
             op.apply(&alpha, dim, &mut flat, &mut FlattenScratch::default());
             let scale = reference.iter().fold(0.0f32, |m, v| m.max(v.abs()));
@@ -301,17 +318,19 @@ pub(super) mod tests {
         // coefficients are all `c` flattens to `c` wherever it has support (Eq. 2's partition
         // of unity), despite 16-bit values.
         let ib = plane_basis(5, 3);
+        let fb = all(&ib);
         for options in [FlattenOptions::EXACT, FlattenOptions::default()] {
-            let op = FlattenOp::build_with(&ib, None, options).unwrap();
+            let op = FlattenOp::build_with(&ib, &fb, None, options).unwrap();
             let n = ib.basis.len();
             for l in 0..ib.levels() {
                 let mut alpha = vec![0.0f32; n];
                 for k in ib.basis.level_range(l) {
                     alpha[k] = 0.7;
                 }
-                let mut flat = vec![f32::NAN; n];
-                op.apply(&alpha, 1, &mut flat, &mut FlattenScratch::default());
-                for (j, &v) in flat.iter().enumerate() {
+                let mut flat_out = vec![f32::NAN; fb.len()];
+                op.apply(&alpha, 1, &mut flat_out, &mut FlattenScratch::default());
+                for (i, &v) in flat_out.iter().enumerate() {
+                    let j = fb.source[i] as usize;
                     let (x, nj) = (ib.basis.positions[j], ib.basis.normals[j]);
                     if ib.weight_sum(l, x, nj) > MIN_WEIGHT_SUM {
                         assert!(
@@ -329,13 +348,14 @@ pub(super) mod tests {
     #[test]
     fn dropping_small_values_costs_little() {
         let ib = plane_basis(6, 3);
-        let exact = FlattenOp::build_with(&ib, None, FlattenOptions::EXACT).unwrap();
-        let dropped = FlattenOp::build(&ib, None).unwrap();
+        let fb = all(&ib);
+        let exact = FlattenOp::build_with(&ib, &fb, None, FlattenOptions::EXACT).unwrap();
+        let dropped = FlattenOp::build(&ib, &fb, None).unwrap();
         // Fewer entries, and the kept ones still sum to one per row and level (tested above).
         assert!(dropped.entries() < exact.entries() * 97 / 100);
         let alpha = coefficients(&ib, 9);
         let run = |op: &FlattenOp| {
-            let mut flat = vec![f32::NAN; alpha.len()];
+            let mut flat = vec![f32::NAN; fb.len() * 9];
             op.apply(&alpha, 9, &mut flat, &mut FlattenScratch::default());
             flat
         };
@@ -348,19 +368,20 @@ pub(super) mod tests {
         let ib = plane_basis(4, 3);
         let n = ib.basis.len();
         let keep: Vec<bool> = (0..n).map(|k| k % 3 != 0).collect();
-        let op = FlattenOp::build_with(&ib, Some(&keep), FlattenOptions::EXACT).unwrap();
-        let full = FlattenOp::build_with(&ib, None, FlattenOptions::EXACT).unwrap();
+        let fb = all(&ib);
+        let op = FlattenOp::build_with(&ib, &fb, Some(&keep), FlattenOptions::EXACT).unwrap();
+        let full = FlattenOp::build_with(&ib, &fb, None, FlattenOptions::EXACT).unwrap();
         assert!(op.entries() < full.entries() && op.bytes() < full.bytes());
         let mut alpha = coefficients(&ib, 9);
-        let mut flat = vec![0.0; alpha.len()];
+        let mut flat = vec![0.0; fb.len() * 9];
         op.apply(&alpha, 9, &mut flat, &mut FlattenScratch::default());
         for k in (0..n).filter(|k| !keep[*k]) {
             alpha[k * 9..k * 9 + 9].fill(0.0);
         }
-        let reference = flatten(&ib, &alpha, 9);
+        let reference = fb.flatten(&ib, &alpha, 9);
         assert_within_quantisation(&op, &alpha, &flat, &reference);
         // The dropped coefficients did matter.
-        let mut all = vec![0.0; alpha.len()];
+        let mut all = vec![0.0; fb.len() * 9];
         full.apply(
             &coefficients(&ib, 9),
             9,
@@ -368,7 +389,7 @@ pub(super) mod tests {
             &mut FlattenScratch::default(),
         );
         assert!(max_diff(&flat, &all) > 1e-2);
-        assert!(FlattenOp::build(&ib, Some(&keep[1..])).is_err());
+        assert!(FlattenOp::build(&ib, &fb, Some(&keep[1..])).is_err());
     }
 
     #[test]
@@ -378,14 +399,15 @@ pub(super) mod tests {
         assert!(ib.basis.len() > 4 * BUILD_BLOCK, "{}", ib.basis.len());
         assert!(ib.basis.len() > 4 * TASK_BLOCKS * BLOCK_ROWS);
         let alpha = coefficients(&ib, 9);
+        let fb = all(&ib);
         let run = |threads: usize| {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
                 .build()
                 .unwrap();
             pool.install(|| {
-                let op = FlattenOp::build(&ib, None).unwrap();
-                let mut flat = vec![0.0; alpha.len()];
+                let op = FlattenOp::build(&ib, &fb, None).unwrap();
+                let mut flat = vec![0.0; fb.len() * 9];
                 op.apply(&alpha, 9, &mut flat, &mut FlattenScratch::default());
                 (op, flat)
             })
@@ -399,6 +421,6 @@ pub(super) mod tests {
         assert_eq!(bits(&f1), bits(&f3));
         // The default operator drops small values: close to the reference, not within the
         // quantisation bound.
-        assert!(rel_rms(&f1, &flatten(&ib, &alpha, 9)) < 1e-3);
+        assert!(rel_rms(&f1, &fb.flatten(&ib, &alpha, 9)) < 1e-3);
     }
 }

@@ -1,8 +1,7 @@
-//! The splatting pass: every flat basis function that survives frustum culling (all points
-//! with their own radii and their level's priority factor: `mlt_format::flatten`) is drawn as
-//! a footprint bounding its support sphere; covered pixels accumulate, with additive blending,
-//! `f_j w_j` (Eq. 8), `f_j w_j c_j` and the unscaled `w_j` (which decides whether a pixel has
-//! support).
+//! The splatting pass: every flat basis function that survives frustum culling (one level, on
+//! the points the solution needs, each with a radius from the local density of the flat
+//! points: `mlt_format::flat_basis`) is drawn as a footprint bounding its support sphere;
+//! covered pixels accumulate, with additive blending, `w_j` (Eq. 8) and `w_j c_j`.
 
 use wgpu::ShaderStages as Stages;
 

@@ -1,5 +1,5 @@
 // Flattening on the GPU (section 4.1): the precomputed sparse operator of
-// format/src/flatten_op.rs applied to the hierarchical coefficients `i`, one invocation per
+// the relighting crate's flatten_op applied to the hierarchical coefficients `i`, one invocation per
 // flat point, each row summed in its stored order. An entry packs the block-local column (low
 // 16 bits) and the value as a fraction of `counts.w` (high 16 bits).
 

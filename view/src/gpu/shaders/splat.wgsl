@@ -8,7 +8,7 @@ struct Point {
     pos_r: vec4<f32>,
     // xyz: normal; w: level.
     normal_level: vec4<f32>,
-    // x: the level's priority factor in the flat basis.
+    // x: 1 (a weight factor; the flat basis has one level).
     factor: vec4<f32>,
 };
 

@@ -1,0 +1,428 @@
+//! The flat basis of section 4.1: "a single-level meshless basis constructed from the same
+//! points" as the hierarchical one, into which a hierarchical expansion is resampled so that a
+//! renderer accumulates one layer of functions instead of every level.
+//!
+//! Which points: only those the solution needs. A hierarchical coefficient can be non-zero
+//! only at a receiver with links (section 3.3); where no point of level `l` or finer with links
+//! has support, the expansion there is a sum of coarser levels only and the points of level
+//! `l` add nothing the coarser ones do not represent. So point `j` of level `l` is kept when
+//! some point of level `l` or finer that has links has a positive weight (Eq. 8) at `p_j`;
+//! every point of level 0 is kept.
+//!
+//! Radii: each flat point's support radius comes from the density of the flat point set
+//! around it, [`FLAT_RADIUS_FACTOR`] times the distance (Eq. 11's metric) to its
+//! [`FLAT_NEIGHBOURS`]-th nearest flat neighbour, so that a surface point is covered by a
+//! bounded number of functions wherever the set is fine or coarse, without level weights.
+//! Where that leaves a hierarchical point of the surface without a flat function of
+//! appreciable weight (at the rim of a sparse region, on a narrow face), the nearest flat
+//! point's radius grows to cover it ([`HOLE_WEIGHT`]).
+//!
+//! The flat points are stored as a one-level [`Basis`] (Morton order) with an R-tree, and the
+//! index of the hierarchical point each one is.
+
+use crate::basis::Basis;
+use crate::error::FormatError;
+use crate::kernel::poisson_distance;
+use crate::morton::morton_order;
+use crate::rtree::RTree;
+use crate::shepard::{IndexedBasis, Support, MAX_DIM, MIN_WEIGHT_SUM};
+
+/// The neighbour whose distance sets a flat point's radius (the k of a k-nearest search).
+pub const FLAT_NEIGHBOURS: usize = 4;
+
+/// Flat radius over the distance to the [`FLAT_NEIGHBOURS`]-th nearest flat point.
+pub const FLAT_RADIUS_FACTOR: f32 = 1.6;
+
+/// A hierarchical point where the flat weights sum to less than this is a hole: the nearest
+/// flat point's radius grows until the point lies at [`HOLE_REACH`] of it.
+pub const HOLE_WEIGHT: f32 = 0.05;
+
+/// The fraction of the grown radius at which a hole's point then lies (weight `K(0.7)`, about
+/// 0.2, times the normals' squared cosine).
+pub const HOLE_REACH: f32 = 0.7;
+
+/// A single-level basis on a subset of the hierarchical points.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FlatBasis {
+    /// The flat points (one level) with their flat radii, and its R-tree.
+    pub ib: IndexedBasis,
+    /// For each flat point, the index of the hierarchical point it is.
+    pub source: Vec<u32>,
+}
+
+impl FlatBasis {
+    /// Builds the flat basis of `hier`. `linked[k]` says whether hierarchical point `k` has
+    /// links (may hold a non-zero coefficient); `None` keeps every point. Points are
+    /// independent, so the work is parallel (rayon) with the same result for any thread
+    /// count.
+    pub fn build(hier: &IndexedBasis, linked: Option<&[bool]>) -> Result<FlatBasis, FormatError> {
+        let b = &hier.basis;
+        if let Some(m) = linked {
+            if m.len() != b.len() {
+                return Err(FormatError::InvalidBasis(format!(
+                    "{} link flags for {} points",
+                    m.len(),
+                    b.len()
+                )));
+            }
+        }
+        let kept = needed_points(hier, linked);
+        let mut source: Vec<u32> = Vec::with_capacity(kept.len());
+        let positions: Vec<[f32; 3]> = kept.iter().map(|&j| b.positions[j as usize]).collect();
+        for i in morton_order(&positions) {
+            source.push(kept[i as usize]);
+        }
+        let mut radii = density_radii(hier, &source);
+        fill_holes(hier, &source, &mut radii);
+        Self::from_parts(hier, source, radii)
+    }
+
+    /// The flat basis on the points `source` of `hier` with the flat radii `radii`.
+    pub fn from_parts(
+        hier: &IndexedBasis,
+        source: Vec<u32>,
+        radii: Vec<f32>,
+    ) -> Result<FlatBasis, FormatError> {
+        let b = &hier.basis;
+        if radii.len() != source.len() || source.iter().any(|&j| j as usize >= b.len()) {
+            return Err(FormatError::InvalidBasis(
+                "flat points out of range or radii of another length".into(),
+            ));
+        }
+        let m = source.len();
+        let disk = b.disk_radii.last().copied().unwrap_or(1.0);
+        let flat = Basis {
+            positions: source.iter().map(|&j| b.positions[j as usize]).collect(),
+            normals: source.iter().map(|&j| b.normals[j as usize]).collect(),
+            radii,
+            level_offsets: vec![0, m as u32],
+            disk_radii: vec![disk],
+        };
+        flat.validate()?;
+        let tree = RTree::build(&flat, 0..m);
+        Ok(FlatBasis {
+            ib: IndexedBasis {
+                basis: flat,
+                trees: vec![tree],
+            },
+            source,
+        })
+    }
+
+    /// Number of flat points.
+    pub fn len(&self) -> usize {
+        self.source.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.source.is_empty()
+    }
+
+    /// Flat coefficients `c_i = F_L(p_i)` (Eq. 6 at each flat point) of the hierarchical
+    /// coefficients `alpha` (`dim` floats per hierarchical point), `dim` floats per flat point.
+    pub fn flatten(&self, hier: &IndexedBasis, alpha: &[f32], dim: usize) -> Vec<f32> {
+        use rayon::prelude::*;
+        let b = &hier.basis;
+        let d = dim.max(1);
+        let mut flat = vec![0.0f32; self.len() * dim];
+        flat.par_chunks_mut(d * 256)
+            .enumerate()
+            .for_each(|(chunk, out)| {
+                for (k, o) in out.chunks_mut(d).enumerate() {
+                    let j = self.source[chunk * 256 + k] as usize;
+                    hier.reconstruct(
+                        alpha,
+                        dim,
+                        0..hier.levels(),
+                        b.positions[j],
+                        b.normals[j],
+                        o,
+                    );
+                }
+            });
+        flat
+    }
+
+    /// Evaluates the flat expansion `sum_i c_i B^flat_i(x, n)` (Eq. 2 on the one flat level)
+    /// into `out[..dim]`, as the renderer's splatting does per pixel; 0 without support.
+    pub fn reconstruct(
+        &self,
+        flat: &[f32],
+        dim: usize,
+        x: [f32; 3],
+        n: [f32; 3],
+        out: &mut [f32],
+    ) -> Support {
+        assert!(dim <= MAX_DIM && out.len() >= dim && flat.len() >= self.len() * dim);
+        let mut acc = [0.0f32; MAX_DIM];
+        let sum = self.ib.for_each_weight(0, x, n, |i, w| {
+            for k in 0..dim {
+                acc[k] += w * flat[i * dim + k];
+            }
+        });
+        if sum > MIN_WEIGHT_SUM {
+            for k in 0..dim {
+                out[k] = acc[k] / sum;
+            }
+            Support {
+                supported: 1,
+                unsupported: 0,
+            }
+        } else {
+            out[..dim].fill(0.0);
+            Support {
+                supported: 0,
+                unsupported: 1,
+            }
+        }
+    }
+
+    /// Number of flat functions with a positive weight at `(x, n)`.
+    pub fn coverage(&self, x: [f32; 3], n: [f32; 3]) -> usize {
+        let mut count = 0;
+        self.ib.for_each_weight(0, x, n, |_, _| count += 1);
+        count
+    }
+}
+
+/// The hierarchical points the flat basis keeps (ascending): all of level 0, and a point of
+/// level `l` where a point of level `l` or finer with links has support.
+fn needed_points(hier: &IndexedBasis, linked: Option<&[bool]>) -> Vec<u32> {
+    use rayon::prelude::*;
+    let b = &hier.basis;
+    let Some(linked) = linked else {
+        return (0..b.len() as u32).collect();
+    };
+    let levels = hier.levels();
+    (0..b.len())
+        .into_par_iter()
+        .filter(|&j| {
+            let l = b.level_of(j);
+            if l == 0 {
+                return true;
+            }
+            let (x, n) = (b.positions[j], b.normals[j]);
+            (l..levels).any(|m| {
+                let mut found = false;
+                hier.for_each_weight(m, x, n, |k, _| found |= linked[k]);
+                found
+            })
+        })
+        .map(|j| j as u32)
+        .collect()
+}
+
+/// Flat radius of each point of `source`: [`FLAT_RADIUS_FACTOR`] times the Eq. 11 distance to
+/// its [`FLAT_NEIGHBOURS`]-th nearest flat point. Neighbours are searched within each flat
+/// point's hierarchical support sphere; a point with fewer neighbours there keeps its
+/// hierarchical radius.
+fn density_radii(hier: &IndexedBasis, source: &[u32]) -> Vec<f32> {
+    use rayon::prelude::*;
+    let b = &hier.basis;
+    let m = source.len();
+    let hier_radii = source.iter().map(|&j| b.radii[j as usize]).collect();
+    let (search, tree) = search_basis(hier, source, hier_radii);
+    (0..m)
+        .into_par_iter()
+        .map(|i| {
+            let (x, n) = (search.positions[i], search.normals[i]);
+            let mut nearest = [f32::INFINITY; FLAT_NEIGHBOURS];
+            tree.for_each_candidate(x, |q| {
+                let q = q as usize;
+                if q == i {
+                    return;
+                }
+                let d = poisson_distance(x, n, search.positions[q], search.normals[q]);
+                if d < nearest[FLAT_NEIGHBOURS - 1] && d <= search.radii[q] {
+                    let mut at = FLAT_NEIGHBOURS - 1;
+                    while at > 0 && nearest[at - 1] > d {
+                        nearest[at] = nearest[at - 1];
+                        at -= 1;
+                    }
+                    nearest[at] = d;
+                }
+            });
+            let own = search.radii[i];
+            let kth = nearest[FLAT_NEIGHBOURS - 1];
+            if kth.is_finite() && kth > 0.0 {
+                (FLAT_RADIUS_FACTOR * kth).min(own)
+            } else {
+                own
+            }
+        })
+        .collect()
+}
+
+/// The flat points of `source` with `radii`, and their R-tree: with the hierarchical radii,
+/// the candidate search of [`density_radii`] and [`fill_holes`].
+fn search_basis(hier: &IndexedBasis, source: &[u32], radii: Vec<f32>) -> (Basis, RTree) {
+    let b = &hier.basis;
+    let m = source.len();
+    let search = Basis {
+        positions: source.iter().map(|&j| b.positions[j as usize]).collect(),
+        normals: source.iter().map(|&j| b.normals[j as usize]).collect(),
+        radii,
+        level_offsets: vec![0, m as u32],
+        disk_radii: vec![1.0],
+    };
+    let tree = RTree::build(&search, 0..m);
+    (search, tree)
+}
+
+/// Grows flat radii over holes: every hierarchical point (they sample every surface at the
+/// finest spacing) where the flat weights sum to less than [`HOLE_WEIGHT`] makes the nearest
+/// flat point (Eq. 11, among those whose hierarchical support holds it) reach it at
+/// [`HOLE_REACH`] of its radius. Deterministic: the proposals are combined by maximum.
+fn fill_holes(hier: &IndexedBasis, source: &[u32], radii: &mut [f32]) {
+    use rayon::prelude::*;
+    let b = &hier.basis;
+    let (flat, flat_tree) = search_basis(hier, source, radii.to_vec());
+    let hier_radii = source.iter().map(|&j| b.radii[j as usize]).collect();
+    let (search, tree) = search_basis(hier, source, hier_radii);
+    let flat_ib = IndexedBasis {
+        basis: flat,
+        trees: vec![flat_tree],
+    };
+    let grow: Vec<(u32, f32)> = (0..b.len())
+        .into_par_iter()
+        .filter_map(|j| {
+            let (x, n) = (b.positions[j], b.normals[j]);
+            if flat_ib.weight_sum(0, x, n) >= HOLE_WEIGHT {
+                return None;
+            }
+            let mut best = (f32::INFINITY, u32::MAX);
+            tree.for_each_candidate(x, |q| {
+                let qu = q as usize;
+                let d = poisson_distance(x, n, search.positions[qu], search.normals[qu]);
+                if d < best.0 && d <= search.radii[qu] {
+                    best = (d, q);
+                }
+            });
+            (best.1 != u32::MAX).then(|| {
+                let q = best.1 as usize;
+                let d = crate::kernel::squashed_distance(x, search.positions[q], search.normals[q]);
+                (best.1, (d / HOLE_REACH).min(search.radii[q]))
+            })
+        })
+        .collect();
+    for (q, r) in grow {
+        let r0 = &mut radii[q as usize];
+        *r0 = r0.max(r);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pull_push::project;
+    use crate::test_support::plane_basis;
+
+    #[test]
+    fn without_link_flags_every_point_is_kept_once() {
+        let ib = plane_basis(3, 3);
+        let fb = FlatBasis::build(&ib, None).unwrap();
+        assert_eq!(fb.len(), ib.basis.len());
+        let mut seen = fb.source.clone();
+        seen.sort_unstable();
+        assert!(seen.iter().enumerate().all(|(i, &j)| i == j as usize));
+        // Radii from the density: never above the hierarchical radius, and the finest
+        // level's density sets them where it has points.
+        for (i, &j) in fb.source.iter().enumerate() {
+            assert!(fb.ib.basis.radii[i] <= ib.basis.radii[j as usize]);
+        }
+    }
+
+    #[test]
+    fn points_without_linked_finer_support_are_left_out() {
+        let ib = plane_basis(3, 3);
+        let n = ib.basis.len();
+        // Only the coarsest level has links: the flat basis is level 0.
+        let linked: Vec<bool> = (0..n).map(|k| ib.basis.level_of(k) == 0).collect();
+        let fb = FlatBasis::build(&ib, Some(&linked)).unwrap();
+        assert_eq!(fb.len(), ib.basis.level_range(0).len());
+        // Links on the finest level everywhere: every point is needed.
+        let linked = vec![true; n];
+        assert_eq!(FlatBasis::build(&ib, Some(&linked)).unwrap().len(), n);
+        assert!(FlatBasis::build(&ib, Some(&linked[1..])).is_err());
+    }
+
+    #[test]
+    fn a_coarse_only_solution_is_reproduced_from_the_coarse_points() {
+        let ib = plane_basis(3, 3);
+        let n = ib.basis.len();
+        let linked: Vec<bool> = (0..n).map(|k| ib.basis.level_of(k) == 0).collect();
+        let fb = FlatBasis::build(&ib, Some(&linked)).unwrap();
+        let mut alpha = vec![0.0f32; n];
+        for k in ib.basis.level_range(0) {
+            let p = ib.basis.positions[k];
+            alpha[k] = 1.0 + 0.3 * p[0] - 0.2 * p[1];
+        }
+        let flat = fb.flatten(&ib, &alpha, 1);
+        let (mut h, mut f) = ([0.0], [0.0]);
+        let mut worst = 0.0f32;
+        for q in 0..100 {
+            let x = [0.2 + 0.006 * q as f32, 0.75 - 0.005 * q as f32, 0.0];
+            let nn = [0.0, 0.0, 1.0];
+            ib.reconstruct(&alpha, 1, 0..3, x, nn, &mut h);
+            assert_eq!(fb.reconstruct(&flat, 1, x, nn, &mut f).supported, 1);
+            worst = worst.max((h[0] - f[0]).abs() / h[0]);
+        }
+        assert!(worst < 0.03, "{worst}");
+    }
+
+    #[test]
+    fn flat_reconstruction_tracks_the_hierarchical_one_with_bounded_coverage() {
+        let ib = plane_basis(4, 3);
+        let fb = FlatBasis::build(&ib, None).unwrap();
+        let f = |p: [f32; 3]| 2.0 + (3.0 * p[0]).sin() * (2.0 * p[1]).cos();
+        let samples: Vec<f32> = ib.basis.positions.iter().map(|&p| f(p)).collect();
+        let (alpha, _) = project(&ib, &samples, 1);
+        let flat = fb.flatten(&ib, &alpha, 1);
+        let (mut h, mut fl) = ([0.0], [0.0]);
+        let (mut worst, mut covered) = (0.0f32, 0usize);
+        for q in 0..200 {
+            let x = [0.1 + 0.004 * q as f32, 0.85 - 0.0035 * q as f32, 0.0];
+            let n = [0.0, 0.0, 1.0];
+            ib.reconstruct(&alpha, 1, 0..4, x, n, &mut h);
+            assert_eq!(fb.reconstruct(&flat, 1, x, n, &mut fl).supported, 1);
+            worst = worst.max((h[0] - fl[0]).abs() / h[0]);
+            let c = fb.coverage(x, n);
+            assert!(c >= 1);
+            covered += c;
+        }
+        assert!(worst < 0.02, "flat and hierarchical differ by {worst}");
+        let mean = covered as f64 / 200.0;
+        assert!(mean <= 16.0, "mean coverage {mean}");
+    }
+
+    #[test]
+    fn every_hierarchical_point_is_covered_where_fine_and_coarse_regions_meet() {
+        let ib = plane_basis(4, 3);
+        let n = ib.basis.len();
+        // Links on the finest level in the left half only: fine points there, coarse ones
+        // elsewhere, and a seam between them.
+        let fine = ib.basis.level_range(3);
+        let linked: Vec<bool> = (0..n)
+            .map(|k| {
+                ib.basis.level_of(k) == 0 || (fine.contains(&k) && ib.basis.positions[k][0] < 0.5)
+            })
+            .collect();
+        let fb = FlatBasis::build(&ib, Some(&linked)).unwrap();
+        assert!(fb.len() < n);
+        for j in 0..n {
+            let (x, nn) = (ib.basis.positions[j], ib.basis.normals[j]);
+            assert!(fb.coverage(x, nn) >= 1, "point {j} at {x:?} uncovered");
+        }
+    }
+
+    #[test]
+    fn flat_constant_is_exact() {
+        let ib = plane_basis(3, 3);
+        let fb = FlatBasis::build(&ib, None).unwrap();
+        let flat = vec![0.75f32; fb.len()];
+        let mut out = [0.0];
+        let s = fb.reconstruct(&flat, 1, [0.3, 0.3, 0.0], [0.0, 0.0, 1.0], &mut out);
+        assert_eq!(s.supported, 1);
+        assert!((out[0] - 0.75).abs() < 1e-6);
+    }
+}

@@ -1,0 +1,149 @@
+//! Exact per-pixel evaluation of the indirect image, the yardstick of the flat basis the
+//! renderer splats: at each pixel's surface point `(x, n)` (ray cast through the pixel centre,
+//! as the G-buffer rasterises it) the hierarchical expansion of the receivers' coefficients is
+//! evaluated directly, `E(x) = sum_l sum_{k in X_l} i_k B^l_k(x, n)` (Eq. 6), and the pixel is
+//! `rho / pi * max(0, n . E_c)` per colour channel `c`, as the resolve pass shades the
+//! vector irradiance. The same pixels can be evaluated through the flat basis
+//! ([`FlatBasis::reconstruct`]) to see what flattening alone changes.
+
+use mlt_format::flat_basis::FlatBasis;
+use mlt_format::links::LINK_DIM;
+use mlt_format::IndexedBasis;
+use mlt_scenes::RayCaster;
+use rayon::prelude::*;
+
+use crate::camera::Camera;
+use crate::images::RgbImage;
+
+/// A pixel's visible surface point.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SurfacePoint {
+    pub position: [f32; 3],
+    /// Shading normal, facing the camera.
+    pub normal: [f32; 3],
+    pub albedo: [f32; 3],
+}
+
+/// The surface point of every pixel of `camera` (rows from the top), `None` where the
+/// primary ray through the pixel centre hits nothing.
+pub fn surface_points(camera: &Camera, caster: &dyn RayCaster) -> Vec<Option<SurfacePoint>> {
+    let w = camera.width;
+    (0..camera.width * camera.height)
+        .into_par_iter()
+        .map(|idx| {
+            let (px, py) = ((idx % w) as f32, (idx / w) as f32);
+            let dir = camera.ray_direction(px + 0.5, py + 0.5);
+            caster
+                .intersect(camera.position, dir, 0.0, f32::INFINITY)
+                .map(|hit| SurfacePoint {
+                    position: hit.position.to_array(),
+                    normal: hit.shading_normal.to_array(),
+                    albedo: hit.albedo,
+                })
+        })
+        .collect()
+}
+
+/// Outgoing indirect radiance `rho / pi * max(0, n . E_c)` of a vector irradiance `e`
+/// (`LINK_DIM` floats: three per channel).
+pub fn shade(p: &SurfacePoint, e: &[f32]) -> [f32; 3] {
+    let n = p.normal;
+    std::array::from_fn(|c| {
+        let v = &e[3 * c..3 * c + 3];
+        let irr = (n[0] * v[0] + n[1] * v[1] + n[2] * v[2]).max(0.0);
+        p.albedo[c] * std::f32::consts::FRAC_1_PI * irr
+    })
+}
+
+/// The indirect image from the hierarchical expansion of `i` (`LINK_DIM` per hierarchical
+/// point), evaluated exactly at every pixel (Eq. 6). `width` is the image width of `points`.
+pub fn exact_indirect(
+    ib: &IndexedBasis,
+    i: &[f32],
+    points: &[Option<SurfacePoint>],
+    width: u32,
+) -> RgbImage {
+    image(points, width, |p| {
+        let mut e = [0.0f32; LINK_DIM];
+        ib.reconstruct(i, LINK_DIM, 0..ib.levels(), p.position, p.normal, &mut e);
+        shade(p, &e)
+    })
+}
+
+/// The indirect image from the flat expansion `flat` (`LINK_DIM` per flat point), evaluated on
+/// the CPU at every pixel, as the renderer's splatting computes it.
+pub fn flat_indirect(
+    fb: &FlatBasis,
+    flat: &[f32],
+    points: &[Option<SurfacePoint>],
+    width: u32,
+) -> RgbImage {
+    image(points, width, |p| {
+        let mut e = [0.0f32; LINK_DIM];
+        fb.reconstruct(flat, LINK_DIM, p.position, p.normal, &mut e);
+        shade(p, &e)
+    })
+}
+
+/// Number of flat functions covering each pixel (`None` where no surface is seen).
+pub fn flat_coverage(fb: &FlatBasis, points: &[Option<SurfacePoint>]) -> Vec<Option<usize>> {
+    points
+        .par_iter()
+        .map(|p| p.map(|p| fb.coverage(p.position, p.normal)))
+        .collect()
+}
+
+fn image(
+    points: &[Option<SurfacePoint>],
+    width: u32,
+    f: impl Fn(&SurfacePoint) -> [f32; 3] + Sync,
+) -> RgbImage {
+    let height = points.len() as u32 / width.max(1);
+    let pixels = points
+        .par_iter()
+        .map(|p| p.as_ref().map_or([0.0; 3], &f))
+        .collect();
+    RgbImage {
+        width,
+        height,
+        pixels,
+    }
+}
+
+/// Pixels of `image` (at surface pixels of `points`) darker than `fraction` times the median
+/// luminance of their `(2 radius + 1)^2` neighbourhood's surface pixels, where that median is
+/// above `floor`: dark blotches. Returns their indices.
+pub fn dark_pixels(
+    image: &RgbImage,
+    points: &[Option<SurfacePoint>],
+    radius: u32,
+    fraction: f32,
+    floor: f32,
+) -> Vec<usize> {
+    let (w, h) = (image.width as i64, image.height as i64);
+    let lum = |k: usize| crate::images::luminance(image.pixels[k]);
+    let mut dark = Vec::new();
+    let mut window = Vec::new();
+    for k in 0..image.pixels.len() {
+        if points[k].is_none() {
+            continue;
+        }
+        let (x, y) = (k as i64 % w, k as i64 / w);
+        window.clear();
+        let r = radius as i64;
+        for yy in (y - r).max(0)..(y + r + 1).min(h) {
+            for xx in (x - r).max(0)..(x + r + 1).min(w) {
+                let q = (yy * w + xx) as usize;
+                if points[q].is_some() {
+                    window.push(lum(q));
+                }
+            }
+        }
+        window.sort_unstable_by(f32::total_cmp);
+        let median = window[window.len() / 2];
+        if median > floor && lum(k) < fraction * median {
+            dark.push(k);
+        }
+    }
+    dark
+}
