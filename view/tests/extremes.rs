@@ -28,7 +28,7 @@ fn probe_values(
     let scene = mlt_scenes::load_scene(spec).unwrap();
     let caster = scene.build_caster();
     let m = file.transport_meta().unwrap().unwrap().params.sender_levels as usize;
-    let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), m, 4);
+    let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), m, 4).expect("relighting operators");
     let frame = r.relight(&light).clone();
     probes
         .iter()

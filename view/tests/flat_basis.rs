@@ -52,7 +52,8 @@ fn check_cornell(name: &str, opts: BakeOptions, w: u32, h: u32, check_blotch: bo
         caster.as_ref(),
         tm.params.sender_levels as usize,
         8,
-    );
+    )
+    .expect("relighting operators");
     let frame = relighter.relight(&light).clone();
     let fb = relighter.flat_basis().clone();
     assert!(fb.len() <= ib.basis.len());

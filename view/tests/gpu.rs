@@ -466,7 +466,8 @@ fn gpu_flattening_equals_the_cpu_operator() {
     let scene = mlt_scenes::load_scene("builtin:cornell").unwrap();
     let caster = scene.build_caster();
     let light = Light::from_info(&file.meta().unwrap().light).unwrap();
-    let mut relighter = CpuRelighter::new(&ib, links, caster.as_ref(), 3, 4);
+    let mut relighter =
+        CpuRelighter::new(&ib, links, caster.as_ref(), 3, 4).expect("relighting operators");
     let frame = relighter.relight(&light).clone();
     assert!(!frame.flat.is_empty());
     let gpu = gpu();

@@ -97,7 +97,8 @@ fn the_projected_direct_light_keeps_its_flux_as_the_light_nears_a_wall() {
     let lb = file.links_bytes().unwrap().unwrap();
     let links = file.access_links(&lb).unwrap();
     let caster = mlt_scenes::load_scene(spec).unwrap().build_caster();
-    let mut relighter = CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, 4);
+    let mut relighter = CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, 4)
+        .expect("relighting operators");
     let pull_push = PullPushOp::build(&ib, sender_levels);
 
     // The back wall (z = 0.5592, facing -z) and the ceiling (y = 0.5488, facing -y), as

@@ -76,7 +76,7 @@ fn closed_sphere_probes_give_the_analytic_direct_and_indirect_light() {
     let scene = mlt_scenes::load_scene(spec).unwrap();
     let caster = scene.build_caster();
     let light = Light::point(Vec3::ZERO, [1.0, 1.0, 1.0]).unwrap();
-    let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), 2, 4);
+    let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), 2, 4).expect("relighting operators");
     let frame = r.relight(&light).clone();
     assert!(!frame.reused);
     // E0 = I / R^2; indirect = rho / (1 - rho) E0 (less 0.5^8 of the series).
@@ -240,7 +240,8 @@ fn precomputed_stages_match_the_reference_stages() {
             .build()
             .unwrap();
         pool.install(|| {
-            let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, 4);
+            let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, 4)
+                .expect("relighting operators");
             let samples = r.direct(&light);
             let stats = *r.load_stats();
             (
@@ -310,7 +311,8 @@ fn adaptive_shadow_rays_only_refine_the_penumbra() {
     let links = file.access_links(&lb).unwrap();
     // Low and to the side: the blocks cast long shadows with wide penumbrae on the floor.
     let light = Light::point(Vec3::new(0.1, 0.2, 0.3), [0.3, 0.25, 0.2]).unwrap();
-    let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, 8);
+    let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, 8)
+        .expect("relighting operators");
     let (adaptive, adaptive_rays) = r.direct_counted(&light);
     r.adaptive_shadows = false;
     let (full, full_rays) = r.direct_counted(&light);

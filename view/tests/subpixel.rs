@@ -63,7 +63,8 @@ fn box_filtered_direct_light_moves_toward_the_reference_at_edges() {
         caster.as_ref(),
         tm.params.sender_levels as usize,
         8,
-    );
+    )
+    .expect("relighting operators");
     let flat = relighter.relight(&light).flat.clone();
     let gpu = gpu();
     let mut renderer = Renderer::new(&gpu, &GpuMesh::from_scene(&scene), &ib.basis, 1024).unwrap();

@@ -44,7 +44,8 @@ fn load(frames: usize) -> anyhow::Result<Setup> {
     let caster: &'static dyn RayCaster = Box::leak(scene.build_caster());
     let light = Light::from_info(&meta.light)?;
     let sender_levels = tm.params.sender_levels as usize;
-    let relighter = CpuRelighter::new(&baked.ib, baked.links, caster, sender_levels, 8);
+    let relighter = CpuRelighter::new(&baked.ib, baked.links, caster, sender_levels, 8)
+        .expect("relighting operators");
     let (lo, hi) = (
         Vec3::from(meta.scene.bounds_min),
         Vec3::from(meta.scene.bounds_max),

@@ -35,6 +35,7 @@ use mlt_scenes::RayCaster;
 use rayon::prelude::*;
 use serde::Serialize;
 
+use crate::error::RelightError;
 use crate::flatten_op::{FlattenOp, FlattenScratch};
 use crate::light::Light;
 use crate::pull_push_op::PullPushOp;
@@ -105,14 +106,14 @@ pub struct CpuRelighter<'a> {
 
 impl<'a> CpuRelighter<'a> {
     /// Builds the per-file operators (in parallel; the same for any thread count). `links`
-    /// must be validated.
+    /// must be validated. Fails when the flat basis cannot be built on `ib`.
     pub fn new(
         ib: &'a IndexedBasis,
         links: &'a ArchivedLinks,
         caster: &'a dyn RayCaster,
         sender_levels: usize,
         shadow_rays: u32,
-    ) -> CpuRelighter<'a> {
+    ) -> Result<CpuRelighter<'a>, RelightError> {
         let t0 = Instant::now();
         let sender_levels = sender_levels.min(ib.levels());
         let ((pull_push, receiver_links), (flat, flatten_op, flatten_build_ms)) = rayon::join(
@@ -132,13 +133,15 @@ impl<'a> CpuRelighter<'a> {
                         *k = true;
                     }
                 }
-                let flat = FlatBasis::build(ib, Some(&keep))
-                    .or_else(|_| FlatBasis::build(ib, None))
-                    .expect("a validated basis has a flat basis");
-                let op = FlattenOp::build(ib, &flat, Some(&keep)).ok();
+                let flat = FlatBasis::build(ib, Some(&keep));
+                let op = flat
+                    .as_ref()
+                    .ok()
+                    .and_then(|flat| FlattenOp::build(ib, flat, Some(&keep)).ok());
                 (flat, op, t.elapsed().as_secs_f64() * 1e3)
             },
         );
+        let flat = flat?;
         let sample_used = pull_push.sample_used();
         let load = LoadStats {
             build_ms: t0.elapsed().as_secs_f64() * 1e3,
@@ -152,7 +155,7 @@ impl<'a> CpuRelighter<'a> {
             direct_points: sample_used.iter().filter(|u| **u).count(),
             points_in_morton_order: flatten_op.as_ref().is_some_and(FlattenOp::in_point_order),
         };
-        CpuRelighter {
+        Ok(CpuRelighter {
             ib,
             links,
             caster,
@@ -172,7 +175,7 @@ impl<'a> CpuRelighter<'a> {
             flatten_on_cpu: true,
             frame: Frame::default(),
             last: None,
-        }
+        })
     }
 
     /// The precomputed flattening operator (absent only when too large for 32-bit offsets).

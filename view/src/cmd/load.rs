@@ -79,7 +79,8 @@ pub fn with_viewing<T>(args: &BakedArgs, f: impl FnOnce(Viewing<'_>) -> Result<T
         caster.as_ref(),
         sender_levels,
         relight.shadow_rays,
-    );
+    )
+    .context("building the relighting operators")?;
     relighter.adaptive_shadows = !relight.all_shadow_rays;
     relighter.support_average = !relight.point_samples;
     if relighter.flatten_op().is_some() && !relighter.load_stats().points_in_morton_order {

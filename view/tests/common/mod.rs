@@ -58,7 +58,8 @@ pub fn render(
         caster.as_ref(),
         tm.params.sender_levels as usize,
         8,
-    );
+    )
+    .expect("relighting operators");
     let frame = relighter.relight(&light).clone();
     let fb = relighter.flat_basis().clone();
     let flat = frame.flat;
