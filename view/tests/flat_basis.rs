@@ -5,12 +5,11 @@
 
 mod common;
 
-use common::bake_to;
+use common::{bake_to, relight_file};
 use mlt_bake::BakeOptions;
-use mlt_format::BakedFile;
 use mlt_view::exact::{dark_pixels, exact_indirect, flat_coverage, flat_indirect, surface_points};
 use mlt_view::images::luminance;
-use mlt_view::{Camera, CpuRelighter, Light, Relight, RgbImage};
+use mlt_view::{Camera, RgbImage};
 
 /// Relative RMS difference of the luminances of `a` from `reference`.
 fn rel_rmse(a: &RgbImage, reference: &RgbImage) -> f64 {
@@ -38,34 +37,18 @@ fn check_cornell(name: &str, opts: BakeOptions, w: u32, h: u32, check_blotch: bo
     if !f.exists() {
         bake_to(&f, spec, opts);
     }
-    let file = BakedFile::open(&f).unwrap();
-    let meta = file.meta().unwrap();
-    let ib = file.basis().unwrap();
-    let tm = file.transport_meta().unwrap().unwrap();
-    let lb = file.links_bytes().unwrap().unwrap();
-    let links = file.access_links(&lb).unwrap();
-    let caster = mlt_scenes::load_scene(spec).unwrap().build_caster();
-    let light = Light::from_info(&meta.light).unwrap();
-    let mut relighter = CpuRelighter::new(
-        &ib,
-        links,
-        caster.as_ref(),
-        tm.params.sender_levels as usize,
-        8,
-    )
-    .expect("relighting operators");
-    let frame = relighter.relight(&light).clone();
-    let fb = relighter.flat_basis().clone();
+    let r = relight_file(&f, spec, |l| l);
+    let (frame, fb, ib, caster) = (&r.frame, &r.flat, &r.hier, r.caster.as_ref());
     assert!(fb.len() <= ib.basis.len());
-    let mut camera = Camera::from_info(&meta.camera).unwrap();
+    let mut camera = Camera::from_info(&r.meta.camera).unwrap();
     camera.width = w;
     camera.height = h;
-    let points = surface_points(&camera, caster.as_ref());
+    let points = surface_points(&camera, caster);
     let surface = points.iter().filter(|p| p.is_some()).count();
     assert!(surface > (w * h / 2) as usize, "{surface} surface pixels");
 
     // Coverage: every surface pixel, a bounded number of flat functions.
-    let coverage = flat_coverage(&fb, &points);
+    let coverage = flat_coverage(fb, &points);
     let counts: Vec<usize> = coverage.iter().flatten().copied().collect();
     let uncovered = counts.iter().filter(|&&c| c == 0).count();
     let mean = counts.iter().sum::<usize>() as f64 / counts.len() as f64;
@@ -73,8 +56,8 @@ fn check_cornell(name: &str, opts: BakeOptions, w: u32, h: u32, check_blotch: bo
     for &c in &counts {
         histogram[(c / 4).min(7)] += 1;
     }
-    let exact = exact_indirect(&ib, &frame.i, &points, w);
-    let flat = flat_indirect(&fb, &frame.flat, &points, w);
+    let exact = exact_indirect(ib, &frame.i, &points, w);
+    let flat = flat_indirect(fb, &frame.flat, &points, w);
     let rmse = rel_rmse(&flat, &exact);
     let max_lum = exact
         .pixels

@@ -5,15 +5,14 @@
 
 mod common;
 
-use common::{bake_to, gpu, temp_dir};
+use common::{bake_to, gpu, relight_file, temp_dir};
 use mlt_bake::{BakeOptions, Preset};
-use mlt_format::BakedFile;
 use mlt_view::gpu::mesh::GpuMesh;
 use mlt_view::gpu::{Buffers, Renderer};
 use mlt_view::headless::box_filtered;
 use mlt_view::images::{luminance, RgbImage};
 use mlt_view::reference::{render_reference_with, ReferenceOptions};
-use mlt_view::{Camera, CpuRelighter, Light, Relight};
+use mlt_view::{Camera, Light};
 
 const WIDTH: u32 = 64;
 const HEIGHT: u32 = 48;
@@ -43,36 +42,22 @@ fn box_filtered_direct_light_moves_toward_the_reference_at_edges() {
         ..Default::default()
     };
     bake_to(&f, spec, opts);
-    let file = BakedFile::open(&f).unwrap();
-    let meta = file.meta().unwrap();
-    let ib = file.basis().unwrap();
-    let tm = file.transport_meta().unwrap().unwrap();
-    let lb = file.links_bytes().unwrap().unwrap();
-    let links = file.access_links(&lb).unwrap();
-    let scene = mlt_scenes::load_scene(spec).unwrap();
-    let caster = scene.build_caster();
     // A light in the middle of the box: no surface near it, so that the direct image has no
     // 1/d^2 hot spot whose sampling would drown the edges.
-    let file_light = Light::from_info(&meta.light).unwrap();
-    let light = Light::point(glam::Vec3::new(0.2, 0.42, 0.2), file_light.intensity).unwrap();
-    let mut camera = Camera::from_info(&meta.camera).unwrap();
+    let r = relight_file(&f, spec, |l| {
+        Light::point(glam::Vec3::new(0.2, 0.42, 0.2), l.intensity).unwrap()
+    });
+    let (light, caster, ib) = (r.light, r.caster.as_ref(), &r.flat.ib);
+    let mut camera = Camera::from_info(&r.meta.camera).unwrap();
     (camera.width, camera.height) = (WIDTH, HEIGHT);
-    let mut relighter = CpuRelighter::new(
-        &ib,
-        links,
-        caster.as_ref(),
-        tm.params.sender_levels as usize,
-        8,
-    )
-    .expect("relighting operators");
-    let flat = relighter.relight(&light).flat.clone();
     let gpu = gpu();
-    let mut renderer = Renderer::new(&gpu, &GpuMesh::from_scene(&scene), &ib.basis, 1024).unwrap();
-    renderer.set_coefficients(&gpu, &flat);
-    renderer.render(&gpu, &ib, &camera, &light, false).unwrap();
+    let mut renderer =
+        Renderer::new(&gpu, &GpuMesh::from_scene(&r.scene), &ib.basis, 1024).unwrap();
+    renderer.set_coefficients(&gpu, &r.frame.flat);
+    renderer.render(&gpu, ib, &camera, &light, false).unwrap();
     let centres = renderer.read_buffers(&gpu).unwrap();
     let mut filtered =
-        |spp| -> Buffers { box_filtered(&gpu, &mut renderer, &ib, &camera, &light, spp).unwrap() };
+        |spp| -> Buffers { box_filtered(&gpu, &mut renderer, ib, &camera, &light, spp).unwrap() };
     let one = filtered(1);
     let four = filtered(4);
     let sixteen = filtered(16);
@@ -83,7 +68,7 @@ fn box_filtered_direct_light_moves_toward_the_reference_at_edges() {
     // The reference's direct light only (one bounce is enough: the indirect is not compared).
     let mut ro = ReferenceOptions::new(256, 1);
     ro.max_bounces = 1;
-    let reference = render_reference_with(caster.as_ref(), &camera, &light, &ro).unwrap();
+    let reference = render_reference_with(caster, &camera, &light, &ro).unwrap();
     // The reference's box filter: its direct light is noisy only at the edges.
     assert!(reference.direct_noise.rms > 0.0);
 

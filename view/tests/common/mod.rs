@@ -31,6 +31,51 @@ pub fn gpu() -> Gpu {
     })
 }
 
+/// A baked file relit once: its scene, bases and one relit frame.
+pub struct Relit {
+    pub meta: mlt_format::Meta,
+    pub scene: mlt_scenes::Scene,
+    pub caster: Box<dyn mlt_scenes::RayCaster>,
+    pub hier: mlt_format::IndexedBasis,
+    pub flat: mlt_format::flat_basis::FlatBasis,
+    pub frame: mlt_view::Frame,
+    pub light: Light,
+}
+
+/// Opens the baked file `path` of the scene `spec` and relights it with `light` applied to
+/// the file's light (8 shadow rays per sender point).
+pub fn relight_file(path: &Path, spec: &str, light: impl FnOnce(Light) -> Light) -> Relit {
+    let file = BakedFile::open(path).unwrap();
+    let meta = file.meta().unwrap();
+    let hier = file.basis().unwrap();
+    let tm = file.transport_meta().unwrap().unwrap();
+    let lb = file.links_bytes().unwrap().unwrap();
+    let links = file.access_links(&lb).unwrap();
+    let scene = mlt_scenes::load_scene(spec).unwrap();
+    let caster = scene.build_caster();
+    let light = light(Light::from_info(&meta.light).unwrap());
+    let mut relighter = CpuRelighter::new(
+        &hier,
+        links,
+        caster.as_ref(),
+        tm.params.sender_levels as usize,
+        8,
+    )
+    .expect("relighting operators");
+    let frame = relighter.relight(&light).clone();
+    let flat = relighter.flat_basis().clone();
+    drop(relighter);
+    Relit {
+        meta,
+        scene,
+        caster,
+        hier,
+        flat,
+        frame,
+        light,
+    }
+}
+
 /// Bakes `spec`, relights it with `light` and renders it with `camera` (or the file's).
 pub fn render(
     spec: &str,
@@ -42,42 +87,23 @@ pub fn render(
     let d = temp_dir("render", name);
     let f = d.join("scene.mlt");
     bake_to(&f, spec, opts);
-    let file = BakedFile::open(&f).unwrap();
-    let meta = file.meta().unwrap();
-    let ib = file.basis().unwrap();
-    let tm = file.transport_meta().unwrap().unwrap();
-    let lb = file.links_bytes().unwrap().unwrap();
-    let links = file.access_links(&lb).unwrap();
-    let scene = mlt_scenes::load_scene(spec).unwrap();
-    let caster = scene.build_caster();
-    let light = light.unwrap_or_else(|| Light::from_info(&meta.light).unwrap());
-    let camera = camera(&Camera::from_info(&meta.camera).unwrap());
-    let mut relighter = CpuRelighter::new(
-        &ib,
-        links,
-        caster.as_ref(),
-        tm.params.sender_levels as usize,
-        8,
-    )
-    .expect("relighting operators");
-    let frame = relighter.relight(&light).clone();
-    let fb = relighter.flat_basis().clone();
-    let flat = frame.flat;
+    let r = relight_file(&f, spec, |l| light.unwrap_or(l));
+    let camera = camera(&Camera::from_info(&r.meta.camera).unwrap());
     let gpu = gpu();
     let mut renderer =
-        Renderer::new(&gpu, &GpuMesh::from_scene(&scene), &fb.ib.basis, 512).unwrap();
-    renderer.set_coefficients(&gpu, &flat);
+        Renderer::new(&gpu, &GpuMesh::from_scene(&r.scene), &r.flat.ib.basis, 512).unwrap();
+    renderer.set_coefficients(&gpu, &r.frame.flat);
     renderer
-        .render(&gpu, &fb.ib, &camera, &light, true)
+        .render(&gpu, &r.flat.ib, &camera, &r.light, true)
         .unwrap();
     let buffers = renderer.read_buffers(&gpu).unwrap();
     let gbuffer = renderer.read_gbuffer(&gpu).unwrap();
     let bases = Bases {
-        flat: fb,
-        hier: ib,
-        i: frame.i,
+        flat: r.flat,
+        hier: r.hier,
+        i: r.frame.i,
     };
-    (buffers, gbuffer, flat, bases, light)
+    (buffers, gbuffer, r.frame.flat, bases, r.light)
 }
 
 /// The bases of a render: the flat one splatted and the hierarchical one with the receivers'
