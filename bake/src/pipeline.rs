@@ -4,8 +4,8 @@ use std::time::Instant;
 
 use glam::Vec3;
 use mlt_format::meta::{
-    BasisParams, BasisStats, CameraInfo, LightInfo, Meta, SceneInfo, Timings, TransportParams,
-    TransportTimings,
+    BasisParams, BasisStats, CameraInfo, LevelStats, LightInfo, Meta, SceneInfo, Timings,
+    TransportParams, TransportTimings,
 };
 use mlt_format::shard::ShardSection;
 use mlt_format::shepard::MIN_WEIGHT_SUM;
@@ -13,6 +13,7 @@ use mlt_format::{BakeContents, IndexedBasis, Transport};
 use mlt_scenes::{LightKind, RayCaster, Scene};
 
 use crate::candidates::CandidatePool;
+use crate::coverage::{coverage_fills, with_fills};
 use crate::error::BakeError;
 use crate::observer::Observer;
 use crate::params::{bounce_policy, manifest_options, resolve, resolve_transport, BakeOptions};
@@ -325,7 +326,7 @@ fn place_basis(
     };
     params.coarse_radius = r_coarse;
     let levels = params.levels as usize;
-    let placement = place(
+    let mut placement = place(
         &mut pool,
         caster,
         LevelPlan {
@@ -370,7 +371,11 @@ fn place_basis(
 
     obs.stage("r-trees");
     let t = Instant::now();
-    let ib = IndexedBasis::build(placement.basis)?;
+    let ib = cover_coarser_levels(
+        IndexedBasis::build(placement.basis)?,
+        &mut placement.levels,
+        obs,
+    )?;
     let rtrees_s = t.elapsed().as_secs_f64();
     let rtree_nodes: u64 = ib.trees.iter().map(|t| t.node_count() as u64).sum();
     obs.done("r-trees", rtrees_s, &format!("{rtree_nodes} nodes"));
@@ -524,6 +529,36 @@ pub fn light_warning(scene: &Scene, caster: &dyn RayCaster) -> Option<String> {
 }
 
 /// Points of levels >= 1 at which no coarser level has support.
+/// The basis with the holes of its coarser levels filled ([`crate::coverage`]), the level
+/// statistics' point counts updated; reports how many points were added.
+fn cover_coarser_levels(
+    ib: IndexedBasis,
+    levels: &mut [LevelStats],
+    obs: &dyn Observer,
+) -> Result<IndexedBasis, BakeError> {
+    let fills = coverage_fills(&ib);
+    let added: Vec<usize> = fills.iter().map(|f| f.len()).collect();
+    if added.iter().all(|&n| n == 0) {
+        return Ok(ib);
+    }
+    for (s, n) in levels.iter_mut().zip(&added) {
+        s.points += *n as u64;
+    }
+    for l in 1..levels.len() {
+        levels[l].growth = levels[l].points as f32 / levels[l - 1].points.max(1) as f32;
+    }
+    let per_level: Vec<String> = added.iter().map(|n| n.to_string()).collect();
+    obs.done(
+        "coverage",
+        0.0,
+        &format!(
+            "points added where a coarser level left finer points uncovered, per level: {}",
+            per_level.join(" / ")
+        ),
+    );
+    Ok(IndexedBasis::build(with_fills(&ib.basis, &fills))?)
+}
+
 fn count_points_without_coarser_support(ib: &IndexedBasis) -> u64 {
     let b = &ib.basis;
     let mut count = 0;

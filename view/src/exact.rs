@@ -110,9 +110,21 @@ fn image(
     }
 }
 
+/// Smallest cosine between two pixels' normals for [`dark_pixels`] to count them as one
+/// surface.
+pub const SAME_SURFACE_COS: f32 = 0.9;
+
+fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
 /// Pixels of `image` (at surface pixels of `points`) darker than `fraction` times the median
-/// luminance of their `(2 radius + 1)^2` neighbourhood's surface pixels, where that median is
-/// above `floor`: dark blotches. Returns their indices.
+/// luminance of their `(2 radius + 1)^2` neighbourhood's pixels on the same surface (normals
+/// within [`SAME_SURFACE_COS`] of the pixel's), where that median is above `floor`: dark
+/// blotches. Pixels of other surfaces are left out of the median: across an edge the light
+/// can differ by more than `1 / fraction` (the top and the front of a block under a light near
+/// the ceiling), which is no blotch; nor are pixels with fewer than half of their window on
+/// their own surface (at its edges the window is one-sided). Returns their indices.
 pub fn dark_pixels(
     image: &RgbImage,
     points: &[Option<SurfacePoint>],
@@ -125,19 +137,24 @@ pub fn dark_pixels(
     let mut dark = Vec::new();
     let mut window = Vec::new();
     for k in 0..image.pixels.len() {
-        if points[k].is_none() {
+        let Some(n) = points[k].map(|p| p.normal) else {
             continue;
-        }
+        };
         let (x, y) = (k as i64 % w, k as i64 / w);
         window.clear();
         let r = radius as i64;
         for yy in (y - r).max(0)..(y + r + 1).min(h) {
             for xx in (x - r).max(0)..(x + r + 1).min(w) {
                 let q = (yy * w + xx) as usize;
-                if points[q].is_some() {
+                if points[q].is_some_and(|p| dot(p.normal, n) >= SAME_SURFACE_COS) {
                     window.push(lum(q));
                 }
             }
+        }
+        // At an edge of its surface the window is one-sided and the median is that of the
+        // surface's interior, not of the pixel's surroundings.
+        if 2 * window.len() < ((2 * r + 1) * (2 * r + 1)) as usize {
+            continue;
         }
         window.sort_unstable_by(f32::total_cmp);
         let median = window[window.len() / 2];

@@ -25,8 +25,9 @@ fn rel_rmse(a: &RgbImage, reference: &RgbImage) -> f64 {
 /// Bakes the built-in Cornell box with `opts`, relights it with the file's light and checks
 /// the flat image of its default view at `w` x `h` against the exact evaluation.
 /// With `check_blotch`, also that the exact image has no pixel darker than a quarter of its
-/// neighbourhood's median (a dark blotch in the hierarchical solution itself).
-fn check_cornell(name: &str, opts: BakeOptions, w: u32, h: u32, check_blotch: bool) {
+/// neighbourhood's median on its own surface (a dark blotch in the hierarchical solution
+/// itself). `rmse_max` bounds the flat image's relative RMSE from the exact one.
+fn check_cornell(name: &str, opts: BakeOptions, w: u32, h: u32, check_blotch: bool, rmse_max: f64) {
     let d = common::temp_dir("flat", name);
     let spec = "builtin:cornell";
     // MLT_FLAT_CORNELL names a bake to reuse (written there when missing).
@@ -86,7 +87,7 @@ fn check_cornell(name: &str, opts: BakeOptions, w: u32, h: u32, check_blotch: bo
     assert_eq!(uncovered, 0, "surface pixels without a flat function");
     assert!(mean <= 12.0, "mean coverage {mean}");
     assert!(
-        rmse < 0.02,
+        rmse < rmse_max,
         "flat image differs from the exact one by {rmse}"
     );
     assert!(
@@ -112,7 +113,24 @@ fn flat_image_of_a_small_cornell_bake_matches_the_exact_evaluation() {
         gather_rays: Some(128),
         ..Default::default()
     };
-    check_cornell("small", opts, 80, 60, true);
+    // 128x96: at 80x60 the 7-pixel window of the blotch test spans half the short block's
+    // front face, whose light falls fourfold from the floor to the top edge.
+    check_cornell("small", opts, 128, 96, true, 0.02);
+}
+
+/// The blotch of the default bake in a bake of seconds: the default level-0 point count (whose
+/// dart throwing leaves part of the short block's front face outside every level-0 support
+/// unless the placement fills it), three levels and few gather rays. Without the coverage fill
+/// the exact image is dark on that face (18 pixels at 128x96).
+#[test]
+fn cornell_solution_at_the_default_point_count_has_no_dark_blotch() {
+    let opts = BakeOptions {
+        receiver_levels: Some(3),
+        gather_rays: Some(64),
+        ..Default::default()
+    };
+    // Three levels and 64 rays make a coarser flat basis than the default bake's.
+    check_cornell("small-default-count", opts, 128, 96, true, 0.05);
 }
 
 /// The default bake of the built-in Cornell box (the main job's `bake builtin:cornell`), whose
@@ -121,14 +139,21 @@ fn flat_image_of_a_small_cornell_bake_matches_the_exact_evaluation() {
 #[test]
 #[ignore]
 fn flat_image_of_the_default_cornell_bake_matches_the_exact_evaluation() {
-    check_cornell("default", BakeOptions::default(), 128, 96, false);
+    check_cornell("default", BakeOptions::default(), 128, 96, false, 0.02);
 }
 
 /// The blotch itself: the exact evaluation of the default bake's hierarchical solution (Eq. 6)
-/// is dark on the short block's front face, where only the coarse levels hold coefficients.
-/// Fails today (the cause is in the solution, not in the flat basis); slow in debug builds.
+/// was dark on the short block's front face, where level 0 had no support; slow in debug
+/// builds.
 #[test]
 #[ignore]
 fn default_cornell_solution_has_no_dark_blotch() {
-    check_cornell("default-blotch", BakeOptions::default(), 128, 96, true);
+    check_cornell(
+        "default-blotch",
+        BakeOptions::default(),
+        128,
+        96,
+        true,
+        0.02,
+    );
 }
