@@ -41,11 +41,11 @@ pub fn coverage_fills(ib: &IndexedBasis) -> Fills {
     for l in (0..levels.saturating_sub(1)).rev() {
         let radius = b.radii[b.level_range(l).start];
         let mut added: Vec<([f32; 3], [f32; 3])> = Vec::new();
-        for m in l + 1..levels {
+        for (m, finer_fills) in fills.iter().enumerate().skip(l + 1) {
             let finer = b
                 .level_range(m)
                 .map(|i| (b.positions[i], b.normals[i]))
-                .chain(fills[m].iter().copied());
+                .chain(finer_fills.iter().copied());
             for (x, n) in finer {
                 let mut sum = ib.weight_sum(l, x, n);
                 for (y, ny) in &added {

@@ -2,10 +2,10 @@
 //! determinism.
 
 use glam::Vec3;
+use mlt_bake::coverage::COVER_MIN_WEIGHT;
 use mlt_format::kernel::poisson_distance;
 use mlt_format::pull_push::{project, pull_push};
 use mlt_format::shepard::MIN_WEIGHT_SUM;
-use mlt_bake::coverage::COVER_MIN_WEIGHT;
 use mlt_format::{IndexedBasis, WriteOptions};
 use mlt_tests::{bake_small, surface_samples};
 
