@@ -23,6 +23,7 @@
 use mlt_format::kernel::weight;
 use mlt_format::morton::morton_order;
 use mlt_format::{Basis, IndexedBasis};
+use rayon::prelude::*;
 
 /// Smallest weight sum (Eq. 8) of a coarser level at a finer point that counts as covered.
 /// A point whose coarser weight sum is below it lies at the rim of that level's supports,
@@ -40,20 +41,28 @@ pub fn coverage_fills(ib: &IndexedBasis) -> Fills {
     let mut fills: Fills = vec![Vec::new(); levels];
     for l in (0..levels.saturating_sub(1)).rev() {
         let radius = b.radii[b.level_range(l).start];
+        // Copies only add weight, so a point the placed level covers stays covered: only the
+        // points it leaves uncovered (found in parallel, in index order) go through the
+        // sequential pass that sees the copies added before them.
+        let finer: Vec<([f32; 3], [f32; 3])> = (l + 1..levels)
+            .flat_map(|m| {
+                b.level_range(m)
+                    .map(|i| (b.positions[i], b.normals[i]))
+                    .chain(fills[m].iter().copied())
+            })
+            .collect();
+        let uncovered: Vec<([f32; 3], [f32; 3])> = finer
+            .into_par_iter()
+            .filter(|&(x, n)| ib.weight_sum(l, x, n) < COVER_MIN_WEIGHT)
+            .collect();
         let mut added: Vec<([f32; 3], [f32; 3])> = Vec::new();
-        for (m, finer_fills) in fills.iter().enumerate().skip(l + 1) {
-            let finer = b
-                .level_range(m)
-                .map(|i| (b.positions[i], b.normals[i]))
-                .chain(finer_fills.iter().copied());
-            for (x, n) in finer {
-                let mut sum = ib.weight_sum(l, x, n);
-                for (y, ny) in &added {
-                    sum += weight(x, n, *y, *ny, radius);
-                }
-                if sum < COVER_MIN_WEIGHT {
-                    added.push((x, n));
-                }
+        for (x, n) in uncovered {
+            let mut sum = ib.weight_sum(l, x, n);
+            for (y, ny) in &added {
+                sum += weight(x, n, *y, *ny, radius);
+            }
+            if sum < COVER_MIN_WEIGHT {
+                added.push((x, n));
             }
         }
         fills[l] = added;
