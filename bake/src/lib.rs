@@ -23,6 +23,7 @@ pub mod poisson;
 pub mod refine;
 pub mod report;
 pub mod rng;
+pub mod sender_cells;
 pub mod shard;
 pub mod surface_samples;
 pub mod table1;
