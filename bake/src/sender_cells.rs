@@ -16,9 +16,9 @@
 
 use std::sync::OnceLock;
 
-use mlt_format::kernel::{weight, F_SQUASH};
+use mlt_format::kernel::{kernel, F_SQUASH};
 use mlt_format::rtree::LEAF_SIZE;
-use mlt_format::{IndexedBasis, RTree};
+use mlt_format::{Basis, IndexedBasis, RTree};
 
 // Item masks of a leaf are 32 bits wide.
 const _: () = assert!(LEAF_SIZE <= 32);
@@ -28,7 +28,7 @@ const MAX_AXIS_CELLS: usize = 1024;
 /// Most cells in all.
 const MAX_CELLS: usize = 1 << 21;
 /// Cell side as a fraction of the mean support radius of the finest sender level.
-const CELL_PER_RADIUS: f32 = 0.5;
+const CELL_PER_RADIUS: f32 = 0.2;
 
 /// The grid of leaf lists over the sender levels `0..levels` of a basis.
 pub struct SenderCells<'a> {
@@ -48,6 +48,56 @@ pub struct SenderCells<'a> {
     /// level, level by level: the node index in the low 32 bits, and above them a mask of the
     /// leaf's items whose weight may be non-zero in the cell (the others are skipped).
     cells: Vec<OnceLock<Box<[u64]>>>,
+    /// Per sender level, the points of its R-tree's `items` in the same order, packed.
+    items: Vec<Vec<Item>>,
+}
+
+/// A sender point as the weight evaluation reads it, in one cache line's half.
+#[derive(Clone, Copy, Debug)]
+struct Item {
+    position: [f32; 3],
+    normal: [f32; 3],
+    /// `1 / r_j`.
+    inv_radius: f32,
+    j: u32,
+}
+
+impl Item {
+    fn new(b: &Basis, j: u32) -> Item {
+        let ju = j as usize;
+        Item {
+            position: b.positions[ju],
+            normal: b.normals[ju],
+            inv_radius: 1.0 / b.radii[ju],
+            j,
+        }
+    }
+
+    /// `mlt_format::kernel::weight(x, n, x_j, n_j, r_j)` (Eq. 8) with the same floating-point
+    /// operations in the same order, the reciprocal of the radius precomputed (the radius is
+    /// positive and finite in a validated basis).
+    #[inline(always)]
+    fn weight(&self, x: [f32; 3], n: [f32; 3]) -> f32 {
+        let nj = self.normal;
+        let c = n[0] * nj[0] + n[1] * nj[1] + n[2] * nj[2];
+        if !(c > 0.0) {
+            return 0.0;
+        }
+        let inv = self.inv_radius;
+        let p = self.position;
+        let v = [
+            (x[0] - p[0]) * inv,
+            (x[1] - p[1]) * inv,
+            (x[2] - p[2]) * inv,
+        ];
+        let vn = v[0] * nj[0] + v[1] * nj[1] + v[2] * nj[2];
+        let q = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+            + (2.0 * F_SQUASH + F_SQUASH * F_SQUASH) * vn * vn;
+        if q >= 1.0 || q.is_nan() {
+            return 0.0;
+        }
+        kernel(q.sqrt()) * c * c
+    }
 }
 
 /// The list of one cell (see [`SenderCells::cell_at`]).
@@ -84,6 +134,7 @@ impl<'a> SenderCells<'a> {
                 max_abs: 0.0,
                 dims: [1; 3],
                 cells: Vec::new(),
+                items: Vec::new(),
             };
         }
         let finest = b.level_range(levels.max(1) - 1);
@@ -125,6 +176,10 @@ impl<'a> SenderCells<'a> {
             max_abs,
             dims,
             cells: (0..count).map(|_| OnceLock::new()).collect(),
+            items: ib.trees[..levels]
+                .iter()
+                .map(|t| t.items.iter().map(|&j| Item::new(b, j)).collect())
+                .collect(),
         }
     }
 
@@ -168,7 +223,7 @@ impl<'a> SenderCells<'a> {
         mut f: impl FnMut(usize, f32),
     ) -> f32 {
         let tree = &self.ib.trees[l];
-        let b = &self.ib.basis;
+        let items = &self.items[l];
         let start = if l == 0 {
             cell.levels
         } else {
@@ -194,11 +249,11 @@ impl<'a> SenderCells<'a> {
             while mask != 0 {
                 let k = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
-                let j = tree.items[first + k] as usize;
-                let w = weight(x, n, b.positions[j], b.normals[j], b.radii[j]);
+                let item = &items[first + k];
+                let w = item.weight(x, n);
                 if w > 0.0 {
                     sum += w;
-                    f(j, w);
+                    f(item.j as usize, w);
                 }
             }
         }
