@@ -80,7 +80,7 @@ impl Item {
     fn weight(&self, x: [f32; 3], n: [f32; 3]) -> f32 {
         let nj = self.normal;
         let c = n[0] * nj[0] + n[1] * nj[1] + n[2] * nj[2];
-        if !(c > 0.0) {
+        if c.is_nan() || c <= 0.0 {
             return 0.0;
         }
         let inv = self.inv_radius;
@@ -435,8 +435,10 @@ mod tests {
 
     #[test]
     fn an_empty_basis_has_no_cells() {
-        let mut b = Basis::default();
-        b.level_offsets = vec![0];
+        let b = Basis {
+            level_offsets: vec![0],
+            ..Basis::default()
+        };
         let ib = IndexedBasis::build(b).unwrap();
         let cells = SenderCells::new(&ib, 0);
         assert!(cells.cell_at([0.0; 3]).is_none());
