@@ -259,7 +259,7 @@ fn trace(
     let (mut rays, mut hits) = (0, 0);
     for bounce in 0..bounces {
         rays += 1;
-        let Some(hit) = caster.intersect(origin, dir, 0.0, f32::INFINITY) else {
+        let Some(hit) = caster.intersect_geometry(origin, dir, 0.0, f32::INFINITY) else {
             break;
         };
         hits += 1;

@@ -19,6 +19,7 @@ use mlt_format::IndexedBasis;
 use mlt_scenes::RayCaster;
 
 use crate::rng::{Rng, Stream};
+use crate::sender_cells::SenderCells;
 use mlt_scenes::sampling::tangent_frame;
 
 /// A dense accumulator over senders with a list of the ones touched, reused between
@@ -78,10 +79,12 @@ pub struct GatherCounts {
 }
 
 /// Adds `T'_ij` for every sender `j` (points of levels `0..sender_levels`) seen from receiver
-/// `i` to `scratch` (Eq. 16).
+/// `i` to `scratch` (Eq. 16). `cells` evaluates the senders' weights at the hits; it must be
+/// built over `ib` with at least `sender_levels` levels.
 #[allow(clippy::too_many_arguments)]
 pub fn gather(
     ib: &IndexedBasis,
+    cells: &SenderCells,
     caster: &dyn RayCaster,
     receiver: usize,
     sender_levels: usize,
@@ -122,10 +125,14 @@ pub fn gather(
             rho[2] * dir.y,
             rho[2] * dir.z,
         ];
+        let Some(cell) = cells.cell_at(y) else {
+            counts.unsupported += sender_levels as u64;
+            continue;
+        };
         for m in 0..sender_levels {
             let mut weights = std::mem::take(&mut scratch.weights);
             weights.clear();
-            let sum = ib.for_each_weight(m, y, ny, |j, w| weights.push((j as u32, w)));
+            let sum = cells.for_each_weight(cell, m, y, ny, |j, w| weights.push((j as u32, w)));
             if sum > MIN_WEIGHT_SUM {
                 let inv = w_ray / sum;
                 for &(j, w) in &weights {
@@ -197,10 +204,11 @@ mod tests {
         let rho = [0.2f32, 0.5, 0.9];
         let caster = SphereCaster::new(Vec3::ZERO, 2.0, rho);
         let eps = caster.ray_epsilon();
+        let cells = SenderCells::new(&ib, 1);
         for rays in [1u32, 2, 3, 256] {
             for i in 0..ib.basis.len() {
                 let mut s = Scratch::new(ib.basis.len());
-                let counts = gather(&ib, &caster, i, 1, rays, 7, eps, &mut s);
+                let counts = gather(&ib, &cells, &caster, i, 1, rays, 7, eps, &mut s);
                 assert_eq!((counts.rays, counts.unsupported), (rays as u64, 0));
                 let n = Vec3::from(ib.basis.normals[i]);
                 let mut sum = [Vec3::ZERO; 3];

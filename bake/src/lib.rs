@@ -4,6 +4,8 @@
 //! - [`candidates`]: importance particles from the viewpoint (section 2.3);
 //! - [`poisson`], [`grid`]: dart throwing in the metric of Eq. 11 with the harmonic mean
 //!   distance test; [`placement`]: the hierarchy of levels and the `R_coarse` search;
+//! - [`gather`]: the hemispherical gather of Eq. 16, with [`sender_cells`] evaluating the
+//!   senders' weights at its hits from per-cell lists instead of R-tree queries;
 //! - [`params`]: the bake's parameters, one struct for the command line, manifests and batch
 //!   jobs ([`BakeOptions`]), and their resolution;
 //! - [`pipeline`]: everything together, with statistics; [`report`]: human-readable output.
@@ -24,6 +26,7 @@ pub mod poisson;
 pub mod refine;
 pub mod report;
 pub mod rng;
+pub mod sender_cells;
 pub mod shard;
 pub mod surface_samples;
 pub mod table1;

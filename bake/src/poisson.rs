@@ -144,7 +144,7 @@ pub fn harmonic_mean_distance(
         let u = ((i as f32 + ou) / sx as f32).fract();
         let v = ((j as f32 + ov) / sy as f32).fract();
         let dir: Vec3 = cosine_hemisphere(n, u, v);
-        let d = match caster.intersect(origin, dir, 0.0, range) {
+        let d = match caster.intersect_geometry(origin, dir, 0.0, range) {
             Some(h) => h.t.max(eps),
             None => range,
         };

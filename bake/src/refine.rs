@@ -40,6 +40,7 @@ use mlt_scenes::RayCaster;
 use rayon::prelude::*;
 
 use crate::gather::{gather, link_distance, link_norm, GatherCounts, Scratch};
+use crate::sender_cells::SenderCells;
 
 /// Receiver-major links of T: one row per processed receiver.
 #[derive(Clone, Debug, Default)]
@@ -186,6 +187,7 @@ pub fn refine(
     let mut stats = RefineStats::default();
     let mut queue: Vec<u32> = b.level_range(0).map(|i| i as u32).collect();
     let unreachable = unreachable_points(ib);
+    let cells = SenderCells::new(ib, settings.sender_levels);
     for l in 0..b.levels() {
         if let Some(needed) = needed {
             queue.retain(|&i| needed[i as usize]);
@@ -197,6 +199,7 @@ pub fn refine(
                 |scratch, &i| {
                     process(
                         ib,
+                        &cells,
                         caster,
                         &t,
                         neighbors,
@@ -262,6 +265,7 @@ fn unreachable_points(ib: &IndexedBasis) -> Vec<Vec<u32>> {
 #[allow(clippy::too_many_arguments)]
 fn process(
     ib: &IndexedBasis,
+    cells: &SenderCells,
     caster: &dyn RayCaster,
     t: &ReceiverLinks,
     neighbors: &Csr,
@@ -275,6 +279,7 @@ fn process(
     scratch.clear();
     let counts = gather(
         ib,
+        cells,
         caster,
         i,
         settings.sender_levels,

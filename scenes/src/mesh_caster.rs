@@ -121,8 +121,16 @@ fn barycentrics(a: Vec3, b: Vec3, c: Vec3, origin: Vec3, dir: Vec3) -> (f32, f32
     (u, v)
 }
 
-impl RayCaster for MeshCaster {
-    fn intersect(&self, origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> Option<Hit> {
+impl MeshCaster {
+    /// The closest hit, with the albedo looked up only when `albedo` is set.
+    fn closest_hit(
+        &self,
+        origin: Vec3,
+        dir: Vec3,
+        tmin: f32,
+        tmax: f32,
+        albedo: bool,
+    ) -> Option<Hit> {
         if self.tris.is_empty() {
             return None;
         }
@@ -157,9 +165,23 @@ impl RayCaster for MeshCaster {
             position,
             geometric_normal,
             shading_normal,
-            albedo: self.mesh.albedo_at(prim_id, (u, v)),
+            albedo: if albedo {
+                self.mesh.albedo_at(prim_id, (u, v))
+            } else {
+                [0.0; 3]
+            },
             prim_id,
         })
+    }
+}
+
+impl RayCaster for MeshCaster {
+    fn intersect(&self, origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> Option<Hit> {
+        self.closest_hit(origin, dir, tmin, tmax, true)
+    }
+
+    fn intersect_geometry(&self, origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> Option<Hit> {
+        self.closest_hit(origin, dir, tmin, tmax, false)
     }
 
     fn occluded(&self, a: Vec3, b: Vec3) -> bool {
@@ -225,6 +247,18 @@ mod tests {
             assert!(h.geometric_normal.dot(dir) < 0.0);
             assert_eq!(h.shading_normal, h.geometric_normal);
             assert_eq!(h.albedo, [0.3, 0.6, 0.9]);
+            // The geometry-only query: the same hit without the albedo lookup.
+            let g = caster
+                .intersect_geometry(Vec3::new(0.2, y, 0.3), dir, 0.0, f32::INFINITY)
+                .expect("hits the quad");
+            assert_eq!(
+                Hit {
+                    albedo: h.albedo,
+                    ..g
+                },
+                h
+            );
+            assert_eq!(g.albedo, [0.0; 3]);
         }
         assert!(caster
             .intersect(Vec3::new(0.2, 2.0, 0.3), -Vec3::Y, 0.0, 1.5)

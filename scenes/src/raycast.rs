@@ -27,6 +27,12 @@ pub trait RayCaster: Sync + Send {
     /// Closest hit along `origin + t * dir` for `t` in `(tmin, tmax)`; `dir` must be unit length.
     fn intersect(&self, origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> Option<Hit>;
 
+    /// [`RayCaster::intersect`] for callers that need only the hit's geometry: the same hit,
+    /// except that `albedo` may be left at zero (no material or texture lookup).
+    fn intersect_geometry(&self, origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> Option<Hit> {
+        self.intersect(origin, dir, tmin, tmax)
+    }
+
     /// True when any surface lies strictly between `a` and `b` (end points excluded by a
     /// scale-relative offset).
     fn occluded(&self, a: Vec3, b: Vec3) -> bool;

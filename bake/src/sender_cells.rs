@@ -1,0 +1,446 @@
+//! Per-cell lists of the sender levels' R-tree leaves: the gather's basis evaluation (Eq. 8 at
+//! every hit of Eq. 16) without an R-tree descent per hit and level.
+//!
+//! A uniform grid covers the bounding box of every sender leaf. A cell's list holds, per sender
+//! level, the leaves of that level's R-tree whose boxes overlap the cell (slightly enlarged), in
+//! the tree's depth-first order. At a point `x` of the cell, [`SenderCells::for_each_weight`]
+//! tests `x` against each listed leaf's box and evaluates the weights of the leaves that contain
+//! it. An inner node's box is the exact union of its items' boxes, so it contains every leaf
+//! box below it: the leaves an R-tree query enters are exactly those whose own box contains
+//! `x`, visited in depth-first order. The list therefore yields the same senders with the same
+//! weights in the same order as [`IndexedBasis::for_each_weight`], and the Shepard sums (Eq. 2)
+//! and the accumulated links are bit-identical.
+//!
+//! Lists are built on first use (a hit in the cell), so only cells on surfaces that rays reach
+//! cost memory; the grid's size is capped.
+
+use std::sync::OnceLock;
+
+use mlt_format::kernel::{kernel, F_SQUASH};
+use mlt_format::rtree::LEAF_SIZE;
+use mlt_format::{Basis, IndexedBasis, RTree};
+
+// Item masks of a leaf are 32 bits wide.
+const _: () = assert!(LEAF_SIZE <= 32);
+
+/// Most cells along one axis (bounds the rounding of the cell index, see [`SenderCells::new`]).
+const MAX_AXIS_CELLS: usize = 1024;
+/// Most cells in all.
+const MAX_CELLS: usize = 1 << 21;
+/// Cell side as a fraction of the mean support radius of the finest sender level.
+const CELL_PER_RADIUS: f32 = 0.2;
+
+/// The grid of leaf lists over the sender levels `0..levels` of a basis.
+pub struct SenderCells<'a> {
+    ib: &'a IndexedBasis,
+    levels: usize,
+    lo: [f32; 3],
+    hi: [f32; 3],
+    cell: f32,
+    inv_cell: f32,
+    /// Absolute enlargement of a cell's box when its list is built, covering the rounding of
+    /// the index computation.
+    pad: f32,
+    /// The largest coordinate magnitude of the grid's bounds.
+    max_abs: f32,
+    dims: [usize; 3],
+    /// Per cell: `levels` end offsets (into the rest of the slice), then the leaves of every
+    /// level, level by level: the node index in the low 32 bits, and above them a mask of the
+    /// leaf's items whose weight may be non-zero in the cell (the others are skipped).
+    cells: Vec<OnceLock<Box<[u64]>>>,
+    /// Per sender level, the points of its R-tree's `items` in the same order, packed.
+    items: Vec<Vec<Item>>,
+}
+
+/// A sender point as the weight evaluation reads it, in one cache line's half.
+#[derive(Clone, Copy, Debug)]
+struct Item {
+    position: [f32; 3],
+    normal: [f32; 3],
+    /// `1 / r_j`.
+    inv_radius: f32,
+    j: u32,
+}
+
+impl Item {
+    fn new(b: &Basis, j: u32) -> Item {
+        let ju = j as usize;
+        Item {
+            position: b.positions[ju],
+            normal: b.normals[ju],
+            inv_radius: 1.0 / b.radii[ju],
+            j,
+        }
+    }
+
+    /// `mlt_format::kernel::weight(x, n, x_j, n_j, r_j)` (Eq. 8) with the same floating-point
+    /// operations in the same order, the reciprocal of the radius precomputed (the radius is
+    /// positive and finite in a validated basis).
+    #[inline(always)]
+    fn weight(&self, x: [f32; 3], n: [f32; 3]) -> f32 {
+        let nj = self.normal;
+        let c = n[0] * nj[0] + n[1] * nj[1] + n[2] * nj[2];
+        if c.is_nan() || c <= 0.0 {
+            return 0.0;
+        }
+        let inv = self.inv_radius;
+        let p = self.position;
+        let v = [
+            (x[0] - p[0]) * inv,
+            (x[1] - p[1]) * inv,
+            (x[2] - p[2]) * inv,
+        ];
+        let vn = v[0] * nj[0] + v[1] * nj[1] + v[2] * nj[2];
+        let q = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+            + (2.0 * F_SQUASH + F_SQUASH * F_SQUASH) * vn * vn;
+        if q >= 1.0 || q.is_nan() {
+            return 0.0;
+        }
+        kernel(q.sqrt()) * c * c
+    }
+}
+
+/// The list of one cell (see [`SenderCells::cell_at`]).
+#[derive(Clone, Copy)]
+pub struct CellList<'c> {
+    list: &'c [u64],
+    levels: usize,
+}
+
+impl<'a> SenderCells<'a> {
+    /// An empty grid (no lists built yet) over the leaves of levels `0..levels` of `ib`.
+    pub fn new(ib: &'a IndexedBasis, levels: usize) -> SenderCells<'a> {
+        let levels = levels.min(ib.levels());
+        let mut lo = [f32::INFINITY; 3];
+        let mut hi = [f32::NEG_INFINITY; 3];
+        for t in &ib.trees[..levels] {
+            if !t.is_empty() {
+                for a in 0..3 {
+                    lo[a] = lo[a].min(t.node_min[0][a]);
+                    hi[a] = hi[a].max(t.node_max[0][a]);
+                }
+            }
+        }
+        let b = &ib.basis;
+        if b.levels() == 0 {
+            return SenderCells {
+                ib,
+                levels: 0,
+                lo,
+                hi,
+                cell: 1.0,
+                inv_cell: 1.0,
+                pad: 0.0,
+                max_abs: 0.0,
+                dims: [1; 3],
+                cells: Vec::new(),
+                items: Vec::new(),
+            };
+        }
+        let finest = b.level_range(levels.max(1) - 1);
+        let mean_r = if levels == 0 || finest.is_empty() {
+            1.0
+        } else {
+            let s: f64 = b.radii[finest.clone()].iter().map(|&r| r as f64).sum();
+            (s / finest.len() as f64) as f32
+        };
+        let extent: [f32; 3] = std::array::from_fn(|a| (hi[a] - lo[a]).max(0.0));
+        let mut cell = (mean_r * CELL_PER_RADIUS).max(f32::MIN_POSITIVE);
+        let dims_for = |cell: f32| -> [usize; 3] {
+            std::array::from_fn(|a| ((extent[a] / cell).ceil() as usize).clamp(1, MAX_AXIS_CELLS))
+        };
+        let mut dims = dims_for(cell);
+        while dims[0] * dims[1] * dims[2] > MAX_CELLS {
+            cell *= 1.25;
+            dims = dims_for(cell);
+        }
+        // Make the grid cover the extent when an axis hit the per-axis cap.
+        for a in 0..3 {
+            cell = cell.max(extent[a] / dims[a] as f32);
+        }
+        let max_abs = lo.iter().chain(&hi).fold(0.0f32, |m, &c| m.max(c.abs()));
+        let pad = 0.01 * cell + 8.0 * f32::EPSILON * max_abs;
+        let count = if lo[0] <= hi[0] {
+            dims[0] * dims[1] * dims[2]
+        } else {
+            0
+        };
+        SenderCells {
+            ib,
+            levels,
+            lo,
+            hi,
+            cell,
+            inv_cell: 1.0 / cell,
+            pad,
+            max_abs,
+            dims,
+            cells: (0..count).map(|_| OnceLock::new()).collect(),
+            items: ib.trees[..levels]
+                .iter()
+                .map(|t| t.items.iter().map(|&j| Item::new(b, j)).collect())
+                .collect(),
+        }
+    }
+
+    /// The number of cells whose list has been built, and the entries they hold.
+    pub fn built(&self) -> (usize, usize) {
+        self.cells
+            .iter()
+            .filter_map(|c| c.get())
+            .fold((0, 0), |(n, e), l| (n + 1, e + l.len()))
+    }
+
+    /// The list of the cell holding `x`; `None` outside every sender leaf (no level has
+    /// support there) and for non-finite `x`.
+    #[inline]
+    pub fn cell_at(&self, x: [f32; 3]) -> Option<CellList<'_>> {
+        let inside = (0..3).all(|a| x[a] >= self.lo[a] && x[a] <= self.hi[a]);
+        if !inside || self.cells.is_empty() {
+            return None;
+        }
+        let idx: [usize; 3] = std::array::from_fn(|a| {
+            (((x[a] - self.lo[a]) * self.inv_cell) as usize).min(self.dims[a] - 1)
+        });
+        let c = (idx[2] * self.dims[1] + idx[1]) * self.dims[0] + idx[0];
+        let list = self.cells[c].get_or_init(|| self.build_cell(idx));
+        Some(CellList {
+            list,
+            levels: self.levels,
+        })
+    }
+
+    /// Calls `f(j, w_j(x, n))` for every basis function of sender level `l` with a positive
+    /// weight (Eq. 8) at `(x, n)`, `x` inside `cell`; returns the sum of those weights. The
+    /// same calls in the same order, and the same sum, as [`IndexedBasis::for_each_weight`].
+    #[inline]
+    pub fn for_each_weight(
+        &self,
+        cell: CellList<'_>,
+        l: usize,
+        x: [f32; 3],
+        n: [f32; 3],
+        mut f: impl FnMut(usize, f32),
+    ) -> f32 {
+        let tree = &self.ib.trees[l];
+        let items = &self.items[l];
+        let start = if l == 0 {
+            cell.levels
+        } else {
+            cell.levels + cell.list[l - 1] as usize
+        };
+        let end = cell.levels + cell.list[l] as usize;
+        let mut sum = 0.0f32;
+        for &entry in &cell.list[start..end] {
+            let node = (entry & 0xffff_ffff) as usize;
+            let lo = tree.node_min[node];
+            let hi = tree.node_max[node];
+            let inside = x[0] >= lo[0]
+                && x[0] <= hi[0]
+                && x[1] >= lo[1]
+                && x[1] <= hi[1]
+                && x[2] >= lo[2]
+                && x[2] <= hi[2];
+            if !inside {
+                continue;
+            }
+            let first = tree.node_first[node] as usize;
+            let mut mask = entry >> 32;
+            while mask != 0 {
+                let k = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                let item = &items[first + k];
+                let w = item.weight(x, n);
+                if w > 0.0 {
+                    sum += w;
+                    f(item.j as usize, w);
+                }
+            }
+        }
+        sum
+    }
+
+    fn build_cell(&self, idx: [usize; 3]) -> Box<[u64]> {
+        let qlo: [f32; 3] =
+            std::array::from_fn(|a| self.lo[a] + idx[a] as f32 * self.cell - self.pad);
+        let qhi: [f32; 3] =
+            std::array::from_fn(|a| self.lo[a] + (idx[a] + 1) as f32 * self.cell + self.pad);
+        let mut out = vec![0u64; self.levels];
+        let mut leaves = Vec::new();
+        for l in 0..self.levels {
+            let tree = &self.ib.trees[l];
+            leaves.clear();
+            leaves_overlapping(tree, qlo, qhi, &mut leaves);
+            for &node in &leaves {
+                let first = tree.node_first[node as usize] as usize;
+                let count = tree.node_count[node as usize] as usize;
+                let mut mask = 0u64;
+                for (k, &j) in tree.items[first..first + count].iter().enumerate() {
+                    if self.may_weigh(j as usize, qlo, qhi) {
+                        mask |= 1 << k;
+                    }
+                }
+                if mask != 0 {
+                    out.push(node as u64 | mask << 32);
+                }
+            }
+            out[l] = (out.len() - self.levels) as u64;
+        }
+        out.into_boxed_slice()
+    }
+
+    /// False only when the weight of point `j` (Eq. 8) is zero everywhere in the box
+    /// `[qlo, qhi]`, as computed in f32: a lower bound of the squashed distance of Eq. 10 over
+    /// the box, `|v|^2 + (2F + F^2) <v, n_j>^2` with `|v|` the distance to the box and
+    /// `|<v, n_j>|` the least over it, exceeds the support radius by a margin that covers the
+    /// rounding of the weight's evaluation (relative, and absolute in the coordinates).
+    fn may_weigh(&self, j: usize, qlo: [f32; 3], qhi: [f32; 3]) -> bool {
+        let b = &self.ib.basis;
+        let (c, nj, r) = (b.positions[j], b.normals[j], b.radii[j] as f64);
+        let mut dist2 = 0.0f64;
+        let (mut vn_lo, mut vn_hi) = (0.0f64, 0.0f64);
+        for a in 0..3 {
+            let (lo, hi) = (qlo[a] as f64 - c[a] as f64, qhi[a] as f64 - c[a] as f64);
+            let gap = (lo.max(0.0) + (-hi).max(0.0)).max(0.0);
+            dist2 += gap * gap;
+            let (p, q) = (lo * nj[a] as f64, hi * nj[a] as f64);
+            vn_lo += p.min(q);
+            vn_hi += p.max(q);
+        }
+        let vn_min = if vn_lo > 0.0 {
+            vn_lo
+        } else if vn_hi < 0.0 {
+            -vn_hi
+        } else {
+            0.0
+        };
+        let squash = (2.0 * F_SQUASH + F_SQUASH * F_SQUASH) as f64;
+        let bound = (dist2 + squash * vn_min * vn_min).sqrt();
+        let magnitude = c.iter().fold(self.max_abs, |m, &v| m.max(v.abs())) as f64;
+        bound <= 1.01 * r + 16.0 * f32::EPSILON as f64 * magnitude
+    }
+}
+
+/// Appends the leaves of `tree` whose boxes overlap `[qlo, qhi]`, in depth-first order (left
+/// child first), pruning subtrees whose boxes do not overlap.
+fn leaves_overlapping(tree: &RTree, qlo: [f32; 3], qhi: [f32; 3], out: &mut Vec<u32>) {
+    if tree.is_empty() {
+        return;
+    }
+    let mut stack = Vec::new();
+    let mut node = 0usize;
+    loop {
+        let (lo, hi) = (tree.node_min[node], tree.node_max[node]);
+        if (0..3).all(|a| lo[a] <= qhi[a] && hi[a] >= qlo[a]) {
+            if tree.node_count[node] > 0 {
+                out.push(node as u32);
+            } else {
+                stack.push(tree.node_first[node]);
+                node += 1;
+                continue;
+            }
+        }
+        match stack.pop() {
+            Some(next) => node = next as usize,
+            None => return,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mlt_format::Basis;
+
+    /// Three levels of points on two crossing planes and a sphere, with normals that vary,
+    /// coarse to fine (4x the points per level), supports overlapping like a bake's.
+    fn basis() -> IndexedBasis {
+        let mut b = Basis::default();
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut rnd = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        b.level_offsets.push(0);
+        for (l, count) in [40usize, 160, 640].into_iter().enumerate() {
+            let r_disk = 1.5 / (1 << l) as f32;
+            for k in 0..count {
+                let (u, v) = (rnd() * 10.0 - 5.0, rnd() * 10.0 - 5.0);
+                let (p, n) = match k % 3 {
+                    0 => ([u, v, 0.0], [0.0, 0.0, 1.0]),
+                    1 => ([u, 0.0, v], [0.0, 1.0, 0.0]),
+                    _ => {
+                        let d = glam::Vec3::new(u, v, rnd() - 0.5).normalize();
+                        ((d * 3.0).to_array(), (-d).to_array())
+                    }
+                };
+                b.positions.push(p);
+                b.normals.push(n);
+                b.radii.push(r_disk * (1.5 + rnd()));
+            }
+            b.level_offsets.push(b.positions.len() as u32);
+            b.disk_radii.push(r_disk);
+        }
+        IndexedBasis::build(b).unwrap()
+    }
+
+    #[test]
+    fn cells_yield_the_rtree_senders_and_weights_in_its_order() {
+        let ib = basis();
+        let cells = SenderCells::new(&ib, 3);
+        let mut state = 99u32;
+        let mut rnd = || {
+            state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (state >> 8) as f32 / (1u32 << 24) as f32
+        };
+        let mut nonzero = 0usize;
+        for q in 0..3000 {
+            // Points on the planes and sphere (where hits are), and anywhere in space.
+            let (u, v) = (rnd() * 12.0 - 6.0, rnd() * 12.0 - 6.0);
+            let (x, n) = match q % 4 {
+                0 => ([u, v, 0.0], [0.0, 0.0, 1.0]),
+                1 => ([u, 0.0, v], [0.0, -1.0, 0.0]),
+                2 => {
+                    let d = glam::Vec3::new(u, v, 1.0).normalize();
+                    ((d * 3.0).to_array(), (-d).to_array())
+                }
+                _ => {
+                    let n = glam::Vec3::new(rnd() - 0.5, rnd() - 0.5, rnd() - 0.5).normalize();
+                    ([u, v, rnd() * 8.0 - 4.0], n.to_array())
+                }
+            };
+            let cell = cells.cell_at(x);
+            for l in 0..3 {
+                let mut want = Vec::new();
+                let want_sum = ib.for_each_weight(l, x, n, |j, w| want.push((j, w.to_bits())));
+                let mut got = Vec::new();
+                let got_sum = match cell {
+                    Some(c) => cells.for_each_weight(c, l, x, n, |j, w| got.push((j, w.to_bits()))),
+                    None => 0.0,
+                };
+                assert_eq!(got, want, "query {q} level {l}");
+                assert_eq!(got_sum.to_bits(), want_sum.to_bits(), "query {q} level {l}");
+                nonzero += want.len();
+            }
+        }
+        assert!(nonzero > 10_000, "{nonzero}");
+        let (built, entries) = cells.built();
+        assert!(built > 0 && entries > built * 3, "{built} {entries}");
+        // Outside every support and for NaN: no cell.
+        assert!(cells.cell_at([100.0, 0.0, 0.0]).is_none());
+        assert!(cells.cell_at([f32::NAN, 0.0, 0.0]).is_none());
+    }
+
+    #[test]
+    fn an_empty_basis_has_no_cells() {
+        let b = Basis {
+            level_offsets: vec![0],
+            ..Basis::default()
+        };
+        let ib = IndexedBasis::build(b).unwrap();
+        let cells = SenderCells::new(&ib, 0);
+        assert!(cells.cell_at([0.0; 3]).is_none());
+    }
+}
