@@ -83,6 +83,38 @@ impl FlatBasis {
         source: Vec<u32>,
         radii: Vec<f32>,
     ) -> Result<FlatBasis, FormatError> {
+        let flat = Self::flat_level(hier, &source, radii)?;
+        let tree = RTree::build(&flat, 0..source.len());
+        Ok(FlatBasis {
+            ib: IndexedBasis {
+                basis: flat,
+                trees: vec![tree],
+            },
+            source,
+        })
+    }
+
+    /// [`FlatBasis::from_parts`] with the flat level's R-tree given (as a file stores it);
+    /// the tree is validated against the flat points.
+    pub fn from_parts_with_tree(
+        hier: &IndexedBasis,
+        source: Vec<u32>,
+        radii: Vec<f32>,
+        tree: RTree,
+    ) -> Result<FlatBasis, FormatError> {
+        let flat = Self::flat_level(hier, &source, radii)?;
+        Ok(FlatBasis {
+            ib: IndexedBasis::from_parts(flat, vec![tree])?,
+            source,
+        })
+    }
+
+    /// The one-level [`Basis`] of the points `source` of `hier` with the radii `radii`.
+    fn flat_level(
+        hier: &IndexedBasis,
+        source: &[u32],
+        radii: Vec<f32>,
+    ) -> Result<Basis, FormatError> {
         let b = &hier.basis;
         if radii.len() != source.len() || source.iter().any(|&j| j as usize >= b.len()) {
             return Err(FormatError::InvalidBasis(
@@ -99,14 +131,7 @@ impl FlatBasis {
             disk_radii: vec![disk],
         };
         flat.validate()?;
-        let tree = RTree::build(&flat, 0..m);
-        Ok(FlatBasis {
-            ib: IndexedBasis {
-                basis: flat,
-                trees: vec![tree],
-            },
-            source,
-        })
+        Ok(flat)
     }
 
     /// Number of flat points.

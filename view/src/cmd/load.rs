@@ -6,6 +6,9 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 use glam::Vec3;
+use mlt_format::flat_basis::FlatBasis;
+use mlt_format::flat_section::{linked_flags, StoredFlat};
+use mlt_format::links::ArchivedLinks;
 use mlt_format::meta::CameraInfo;
 use mlt_format::{BakedFile, IndexedBasis, Meta};
 use mlt_scenes::{RayCaster, Scene};
@@ -73,12 +76,14 @@ pub fn with_viewing<T>(args: &BakedArgs, f: impl FnOnce(Viewing<'_>) -> Result<T
     let caster = setting.scene.build_caster();
 
     let sender_levels = tm.params.sender_levels as usize;
-    let mut relighter = CpuRelighter::new(
+    let stored = stored_flat_basis(&file, &ib, links)?;
+    let mut relighter = CpuRelighter::with_flat_basis(
         &ib,
         links,
         caster.as_ref(),
         sender_levels,
         relight.shadow_rays,
+        stored,
     )
     .context("building the relighting operators")?;
     relighter.adaptive_shadows = !relight.all_shadow_rays;
@@ -100,6 +105,32 @@ pub fn with_viewing<T>(args: &BakedArgs, f: impl FnOnce(Viewing<'_>) -> Result<T
         light: setting.light,
         sender_levels,
         relighter,
+    })
+}
+
+/// The flat basis stored in `file` (`FLAT`, format 1.5), checked against its basis and links;
+/// `None` (build it) for older files and for a section built by another rule than this
+/// build's. A malformed or inconsistent section is an error naming the file.
+fn stored_flat_basis(
+    file: &BakedFile,
+    ib: &IndexedBasis,
+    links: &ArchivedLinks,
+) -> Result<Option<FlatBasis>> {
+    let linked = linked_flags(
+        ib.basis.len(),
+        links.receiver_ids.iter().map(|r| r.to_native()),
+    );
+    Ok(match file.flat_basis(ib, &linked)? {
+        StoredFlat::Stored(flat) => Some(flat),
+        StoredFlat::Absent => None,
+        StoredFlat::OtherRule(rule) => {
+            eprintln!(
+                "note: {} stores a flat basis built by another rule ({rule:?}); building it \
+                 by this build's rule",
+                file.path().display()
+            );
+            None
+        }
     })
 }
 
