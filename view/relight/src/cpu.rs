@@ -51,6 +51,8 @@ pub struct LoadStats {
     pub build_ms: f64,
     /// Of which the flat basis (when built) and the flattening operator.
     pub flatten_build_ms: f64,
+    /// Wall time of [`CpuRelighter::build_support_tables`] when it was called, milliseconds.
+    pub support_tables_ms: f64,
     /// Points of the flat basis (of the hierarchical basis's points).
     pub flat_points: usize,
     /// Whether the flat basis was read from the file (`FLAT`) rather than built.
@@ -164,6 +166,7 @@ impl<'a> CpuRelighter<'a> {
         let load = LoadStats {
             build_ms: t0.elapsed().as_secs_f64() * 1e3,
             flatten_build_ms,
+            support_tables_ms: 0.0,
             flat_points: flat.len(),
             flat_stored,
             flatten_columns: flatten_op.as_ref().map_or(0, FlattenOp::columns),
@@ -200,6 +203,15 @@ impl<'a> CpuRelighter<'a> {
     /// The precomputed flattening operator (absent only when too large for 32-bit offsets).
     pub fn flatten_op(&self) -> Option<&FlattenOp> {
         self.flatten_op.as_ref()
+    }
+
+    /// Tabulates now the basis functions of every sender point whose direct sample is used,
+    /// for the support averages near the light (step 1), which frames otherwise tabulate on
+    /// first use: the first frames near a surface then cost no more than the others.
+    pub fn build_support_tables(&mut self) {
+        let t = Instant::now();
+        self.support.build_tables(&self.sample_used);
+        self.load.support_tables_ms = t.elapsed().as_secs_f64() * 1e3;
     }
 
     /// What building the operators cost.

@@ -88,6 +88,9 @@ pub fn with_viewing<T>(args: &BakedArgs, f: impl FnOnce(Viewing<'_>) -> Result<T
     .context("building the relighting operators")?;
     relighter.adaptive_shadows = !relight.all_shadow_rays;
     relighter.support_average = !relight.point_samples;
+    if relighter.support_average {
+        relighter.build_support_tables();
+    }
     if relighter.flatten_op().is_some() && !relighter.load_stats().points_in_morton_order {
         eprintln!(
             "note: {} stores its points in an older order; baking it again makes CPU flattening \
