@@ -20,30 +20,10 @@
 use xxhash_rust::xxh3::Xxh3;
 
 use crate::error::FormatError;
-use crate::flat_basis::{FlatBasis, FLAT_NEIGHBOURS, FLAT_RADIUS_FACTOR, HOLE_REACH, HOLE_WEIGHT};
+use crate::flat_basis::FlatBasis;
+pub use crate::flat_basis::FlatRule;
 use crate::rtree::RTree;
 use crate::shepard::IndexedBasis;
-
-/// The parameters of the rule that builds a flat basis ([`FlatBasis::build`]).
-#[derive(Clone, Copy, Debug, PartialEq, rkyv::Archive, rkyv::Serialize, rkyv::Deserialize)]
-pub struct FlatRule {
-    pub neighbours: u32,
-    pub radius_factor: f32,
-    pub hole_weight: f32,
-    pub hole_reach: f32,
-}
-
-impl FlatRule {
-    /// The rule of this build.
-    pub fn current() -> FlatRule {
-        FlatRule {
-            neighbours: FLAT_NEIGHBOURS as u32,
-            radius_factor: FLAT_RADIUS_FACTOR,
-            hole_weight: HOLE_WEIGHT,
-            hole_reach: HOLE_REACH,
-        }
-    }
-}
 
 /// The `FLAT` section.
 #[derive(Clone, Debug, PartialEq, rkyv::Archive, rkyv::Serialize, rkyv::Deserialize)]

@@ -19,13 +19,21 @@ pub struct FlatArgs {
     /// Print the figures as JSON instead of text.
     #[arg(long)]
     pub json: bool,
+    /// Sharpen the flat coefficients with one step of iterated Shepard correction first.
+    #[arg(long)]
+    pub sharpen: bool,
 }
 
 pub fn run(args: &FlatArgs) -> Result<()> {
     with_viewing(&args.baked, |mut v| {
         let frame = v.relighter.relight(&v.light).clone();
         let fb = v.relighter.flat_basis();
-        let check = FlatCheck::measure(v.ib, &frame.i, fb, &frame.flat, &v.camera, v.caster);
+        let flat = if args.sharpen {
+            mlt_view::flat_check::sharpen(fb, &frame.flat, mlt_format::links::LINK_DIM)
+        } else {
+            frame.flat.clone()
+        };
+        let check = FlatCheck::measure(v.ib, &frame.i, fb, &flat, &v.camera, v.caster);
         if args.json {
             let mut json = serde_json::to_value(&check)?;
             json["darker"] = serde_json::json!(check.darker.len());

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 use glam::Vec3;
-use mlt_format::flat_basis::FlatBasis;
+use mlt_format::flat_basis::{FlatBasis, FlatRule};
 use mlt_format::flat_section::{linked_flags, StoredFlat};
 use mlt_format::links::ArchivedLinks;
 use mlt_format::meta::CameraInfo;
@@ -76,7 +76,10 @@ pub fn with_viewing<T>(args: &BakedArgs, f: impl FnOnce(Viewing<'_>) -> Result<T
     let caster = setting.scene.build_caster();
 
     let sender_levels = tm.params.sender_levels as usize;
-    let stored = stored_flat_basis(&file, &ib, links)?;
+    let stored = match relight.flat_rule {
+        Some(rule) => Some(flat_basis_by(&ib, links, rule)?),
+        None => stored_flat_basis(&file, &ib, links)?,
+    };
     let mut relighter = CpuRelighter::with_flat_basis(
         &ib,
         links,
@@ -135,6 +138,15 @@ fn stored_flat_basis(
             None
         }
     })
+}
+
+/// The flat basis of `ib` for the receivers of `links` built by `rule`.
+fn flat_basis_by(ib: &IndexedBasis, links: &ArchivedLinks, rule: FlatRule) -> Result<FlatBasis> {
+    let linked = linked_flags(
+        ib.basis.len(),
+        links.receiver_ids.iter().map(|r| r.to_native()),
+    );
+    FlatBasis::build_with(ib, Some(&linked), rule).context("building the flat basis")
 }
 
 /// The setting of `input`: a baked `.mlt` file's (its scene, camera and light) or a scene
