@@ -93,7 +93,7 @@ fn parse_flat_rule(s: &str) -> Result<FlatRule, String> {
     let k: u32 = k.trim().parse().map_err(|e| format!("{k}: {e}"))?;
     let f: f32 = f.trim().parse().map_err(|e| format!("{f}: {e}"))?;
     let max = mlt_format::flat_basis::MAX_NEIGHBOURS as u32;
-    if !(1..=max).contains(&k) || !(f > 0.0 && f.is_finite()) {
+    if !((1..=max).contains(&k) && f > 0.0 && f.is_finite()) {
         return Err(format!("K must be 1 to {max} and F positive, got {s}"));
     }
     Ok(FlatRule {
