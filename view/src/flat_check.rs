@@ -22,6 +22,10 @@ pub const BINS: usize = 8;
 pub struct FlatCheck {
     pub flat_points: usize,
     pub hierarchical_points: usize,
+    /// Per level of the hierarchical basis: its points, and how many of them the flat basis
+    /// keeps.
+    pub points_per_level: Vec<usize>,
+    pub flat_per_level: Vec<usize>,
     pub width: u32,
     pub height: u32,
     /// Pixels whose centre sees a surface.
@@ -107,9 +111,16 @@ impl FlatCheck {
                 e > floor && luminance(flat_image.pixels[k]) < 0.25 * e
             })
             .collect();
+        let b = &hier.basis;
+        let mut flat_per_level = vec![0usize; b.levels()];
+        for &j in &fb.source {
+            flat_per_level[b.level_of(j as usize)] += 1;
+        }
         FlatCheck {
             flat_points: fb.len(),
             hierarchical_points: hier.basis.len(),
+            points_per_level: (0..b.levels()).map(|l| b.level_range(l).len()).collect(),
+            flat_per_level,
             width: w,
             height: camera.height,
             surface_pixels: counts.len(),
@@ -137,11 +148,13 @@ impl FlatCheck {
             })
             .collect();
         format!(
-            "flat basis: {} of {} points\n{}x{}: {} surface pixels, covered by {:.2} flat \
+            "flat basis: {} of {} points (per level {:?} of {:?})\n{}x{}: {} surface pixels, covered by {:.2} flat \
              functions on average (at most {}), {} uncovered\nhistogram: {}\nflat vs exact \
              indirect: relative RMSE {:.4}; {} pixels below a quarter of the exact\n",
             self.flat_points,
             self.hierarchical_points,
+            self.flat_per_level,
+            self.points_per_level,
             self.width,
             self.height,
             self.surface_pixels,
