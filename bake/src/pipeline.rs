@@ -3,6 +3,7 @@
 use std::time::Instant;
 
 use glam::Vec3;
+use mlt_format::flat_section::{linked_flags, FlatSection};
 use mlt_format::meta::{
     BasisParams, BasisStats, CameraInfo, LevelStats, LightInfo, Meta, SceneInfo, Timings,
     TransportParams, TransportTimings,
@@ -166,6 +167,7 @@ pub fn bake_scene(
         obs,
     )?;
     warnings.extend(stage.warnings);
+    let flat = flat_section(&stage.ib, stage.transport.as_ref(), obs)?;
 
     let timings = Timings {
         load_s: 0.0,
@@ -200,11 +202,38 @@ pub fn bake_scene(
             transport: stage.transport,
             input_key: stage.file_key,
             shard: stage.shard,
+            flat,
         },
         timings,
         transport_timings: stage.timings,
         warnings,
     })
+}
+
+/// The `FLAT` section of a file with transport: the one-level flat basis on `ib` for the
+/// receivers of `transport`'s links, which the viewer would otherwise build when it opens
+/// the file. `None` without transport.
+pub fn flat_section(
+    ib: &IndexedBasis,
+    transport: Option<&Transport>,
+    obs: &dyn Observer,
+) -> Result<Option<FlatSection>, BakeError> {
+    let Some(t) = transport else {
+        return Ok(None);
+    };
+    let t0 = Instant::now();
+    let linked = linked_flags(ib.basis.len(), t.links.receiver_ids.iter().copied());
+    let section = FlatSection::build(ib, &linked)?;
+    obs.done(
+        "flat basis",
+        t0.elapsed().as_secs_f64(),
+        &format!(
+            "{} of {} points in the one-level basis",
+            section.source.len(),
+            ib.basis.len()
+        ),
+    );
+    Ok(Some(section))
 }
 
 /// What the transport stage gave: the basis to store (finer levels without a link of S left

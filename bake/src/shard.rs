@@ -18,6 +18,7 @@ use mlt_format::{BakeContents, IndexedBasis};
 
 use crate::error::BakeError;
 use crate::observer::Observer;
+use crate::pipeline::flat_section;
 use crate::refine::{ReceiverLinks, RefineStats};
 use crate::transport::{finish_transport, trim_levels, BouncePolicy};
 
@@ -236,11 +237,14 @@ pub fn merge(shards: Vec<BakeContents>, obs: &dyn Observer) -> Result<BakeConten
     }
     let mut transport = out.transport;
     transport.meta.timings = None;
+    let basis = trim_levels(&first.basis, out.levels_stored)?;
+    let flat = flat_section(&basis, Some(&transport), obs)?;
     Ok(BakeContents {
         meta: first.meta.clone(),
-        basis: trim_levels(&first.basis, out.levels_stored)?,
+        basis,
         transport: Some(transport),
         input_key: s0.base_key,
         shard: None,
+        flat,
     })
 }

@@ -16,6 +16,7 @@ use crate::container::{
     self, Header, SectionBytes, SectionIn, ALIGN, SHARD_LAYOUT_MINOR, VERSION_MAJOR, VERSION_MINOR,
 };
 use crate::error::FormatError;
+use crate::flat_section::{ArchivedFlatSection, FlatRule, FlatSection, StoredFlat};
 use crate::links::{ArchivedLinks, Links};
 use crate::meta::{Meta, TransportMeta, TransportReport};
 use crate::rtree::RTree;
@@ -34,6 +35,9 @@ pub const TAG_LINKS: [u8; 4] = *b"SLNK";
 pub const TAG_REPORT: [u8; 4] = *b"TRPT";
 /// A shard's share of T (shard files only).
 pub const TAG_SHARD: [u8; 4] = *b"TSHD";
+/// Added in format 1.5: the one-level flat basis ([`FlatSection`]); optional, so older files
+/// still read (a viewer then builds the flat basis when it opens them).
+pub const TAG_FLAT: [u8; 4] = *b"FLAT";
 
 /// The minor versions (of [`VERSION_MAJOR`]) from which this build reads the section `tag`:
 /// any for the sections of a baked file, whose layout is fixed within the major version; for
@@ -65,6 +69,9 @@ pub struct BakeContents {
     pub input_key: u64,
     /// In a shard file: the shard's share of T.
     pub shard: Option<ShardSection>,
+    /// The flat basis for the transport's links (`FLAT`, format 1.5; `None` in older files,
+    /// shard files and files without transport).
+    pub flat: Option<FlatSection>,
 }
 
 /// The direct-to-indirect operator S with its parameters and statistics.
@@ -114,6 +121,10 @@ pub fn encode(contents: &BakeContents, opts: WriteOptions) -> Result<Vec<u8>, Fo
     if let Some(s) = &contents.shard {
         let bytes = rkyv::to_bytes::<rancor::Error>(s).map_err(ser_err(TAG_SHARD))?;
         sections.push((TAG_SHARD, bytes));
+    }
+    if let Some(f) = &contents.flat {
+        let bytes = rkyv::to_bytes::<rancor::Error>(f).map_err(ser_err(TAG_FLAT))?;
+        sections.push((TAG_FLAT, bytes));
     }
     let ins: Vec<SectionIn> = sections
         .iter()
@@ -383,7 +394,48 @@ impl BakedFile {
             transport,
             input_key: self.header.input_key,
             shard: self.shard()?,
+            flat: self.flat_section()?,
         })
+    }
+
+    /// The `FLAT` section as stored (validated by rkyv only; [`BakedFile::flat_basis`] checks
+    /// it against the basis and links), if the file has one.
+    pub fn flat_section(&self) -> Result<Option<FlatSection>, FormatError> {
+        if !self.has_section(TAG_FLAT) {
+            return Ok(None);
+        }
+        self.section::<FlatSection>(TAG_FLAT).map(Some)
+    }
+
+    /// The flat basis stored in the `FLAT` section, read in place from the mapping and checked
+    /// against this file's basis `hier` and the link flags `linked` of its links
+    /// ([`crate::flat_section::linked_flags`]). A section that does not match them or is
+    /// malformed is an error naming the file; one built by another rule than this build's is
+    /// [`StoredFlat::OtherRule`] (build it instead).
+    pub fn flat_basis(
+        &self,
+        hier: &IndexedBasis,
+        linked: &[bool],
+    ) -> Result<StoredFlat, FormatError> {
+        let Some(entry) = self.header.sections.iter().find(|e| e.tag == TAG_FLAT) else {
+            return Ok(StoredFlat::Absent);
+        };
+        let bad = |detail: String| FormatError::BadSection {
+            path: self.path.clone(),
+            tag: "FLAT".into(),
+            detail,
+        };
+        let bytes = container::section_bytes(&self.path, self.bytes(), entry)?;
+        let section = rkyv::access::<ArchivedFlatSection, rancor::Error>(&bytes)
+            .map_err(|e| bad(e.to_string()))?;
+        let rule = section.rule();
+        if rule != FlatRule::current() {
+            return Ok(StoredFlat::OtherRule(rule));
+        }
+        section
+            .flat_basis(hier, linked)
+            .map(StoredFlat::Stored)
+            .map_err(bad)
     }
 
     fn bad_links(&self, e: FormatError) -> FormatError {

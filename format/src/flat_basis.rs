@@ -41,6 +41,36 @@ pub const HOLE_WEIGHT: f32 = 0.05;
 /// 0.2, times the normals' squared cosine).
 pub const HOLE_REACH: f32 = 0.7;
 
+/// The most neighbours [`FlatRule::neighbours`] may name.
+pub const MAX_NEIGHBOURS: usize = 16;
+
+/// The parameters of the rule that builds a flat basis ([`FlatBasis::build_with`]); stored in
+/// a file's `FLAT` section with the basis it built.
+#[derive(Clone, Copy, Debug, PartialEq, rkyv::Archive, rkyv::Serialize, rkyv::Deserialize)]
+pub struct FlatRule {
+    /// The neighbour whose distance sets a flat point's radius (1 to [`MAX_NEIGHBOURS`]).
+    pub neighbours: u32,
+    /// Flat radius over the distance to that neighbour.
+    pub radius_factor: f32,
+    /// A hierarchical point where the flat weights sum to less than this is a hole.
+    pub hole_weight: f32,
+    /// The fraction of the grown radius at which a hole's point then lies.
+    pub hole_reach: f32,
+}
+
+impl FlatRule {
+    /// The rule of this build ([`FLAT_NEIGHBOURS`], [`FLAT_RADIUS_FACTOR`], [`HOLE_WEIGHT`],
+    /// [`HOLE_REACH`]).
+    pub fn current() -> FlatRule {
+        FlatRule {
+            neighbours: FLAT_NEIGHBOURS as u32,
+            radius_factor: FLAT_RADIUS_FACTOR,
+            hole_weight: HOLE_WEIGHT,
+            hole_reach: HOLE_REACH,
+        }
+    }
+}
+
 /// A single-level basis on a subset of the hierarchical points.
 #[derive(Clone, Debug, PartialEq)]
 pub struct FlatBasis {
@@ -56,7 +86,24 @@ impl FlatBasis {
     /// independent, so the work is parallel (rayon) with the same result for any thread
     /// count.
     pub fn build(hier: &IndexedBasis, linked: Option<&[bool]>) -> Result<FlatBasis, FormatError> {
+        Self::build_with(hier, linked, FlatRule::current())
+    }
+
+    /// [`FlatBasis::build`] by another rule than this build's.
+    pub fn build_with(
+        hier: &IndexedBasis,
+        linked: Option<&[bool]>,
+        rule: FlatRule,
+    ) -> Result<FlatBasis, FormatError> {
         let b = &hier.basis;
+        let valid = (1..=MAX_NEIGHBOURS as u32).contains(&rule.neighbours)
+            && rule.radius_factor > 0.0
+            && rule.hole_weight.is_finite()
+            && rule.hole_reach > 0.0
+            && rule.hole_reach <= 1.0;
+        if !valid {
+            return Err(FormatError::InvalidBasis(format!("flat rule {rule:?}")));
+        }
         if let Some(m) = linked {
             if m.len() != b.len() {
                 return Err(FormatError::InvalidBasis(format!(
@@ -72,8 +119,8 @@ impl FlatBasis {
         for i in morton_order(&positions) {
             source.push(kept[i as usize]);
         }
-        let mut radii = density_radii(hier, &source);
-        fill_holes(hier, &source, &mut radii);
+        let mut radii = density_radii(hier, &source, &rule);
+        fill_holes(hier, &source, &mut radii, &rule);
         Self::from_parts(hier, source, radii)
     }
 
@@ -83,6 +130,38 @@ impl FlatBasis {
         source: Vec<u32>,
         radii: Vec<f32>,
     ) -> Result<FlatBasis, FormatError> {
+        let flat = Self::flat_level(hier, &source, radii)?;
+        let tree = RTree::build(&flat, 0..source.len());
+        Ok(FlatBasis {
+            ib: IndexedBasis {
+                basis: flat,
+                trees: vec![tree],
+            },
+            source,
+        })
+    }
+
+    /// [`FlatBasis::from_parts`] with the flat level's R-tree given (as a file stores it);
+    /// the tree is validated against the flat points.
+    pub fn from_parts_with_tree(
+        hier: &IndexedBasis,
+        source: Vec<u32>,
+        radii: Vec<f32>,
+        tree: RTree,
+    ) -> Result<FlatBasis, FormatError> {
+        let flat = Self::flat_level(hier, &source, radii)?;
+        Ok(FlatBasis {
+            ib: IndexedBasis::from_parts(flat, vec![tree])?,
+            source,
+        })
+    }
+
+    /// The one-level [`Basis`] of the points `source` of `hier` with the radii `radii`.
+    fn flat_level(
+        hier: &IndexedBasis,
+        source: &[u32],
+        radii: Vec<f32>,
+    ) -> Result<Basis, FormatError> {
         let b = &hier.basis;
         if radii.len() != source.len() || source.iter().any(|&j| j as usize >= b.len()) {
             return Err(FormatError::InvalidBasis(
@@ -99,14 +178,7 @@ impl FlatBasis {
             disk_radii: vec![disk],
         };
         flat.validate()?;
-        let tree = RTree::build(&flat, 0..m);
-        Ok(FlatBasis {
-            ib: IndexedBasis {
-                basis: flat,
-                trees: vec![tree],
-            },
-            source,
-        })
+        Ok(flat)
     }
 
     /// Number of flat points.
@@ -216,25 +288,27 @@ fn needed_points(hier: &IndexedBasis, linked: Option<&[bool]>) -> Vec<u32> {
 /// its [`FLAT_NEIGHBOURS`]-th nearest flat point. Neighbours are searched within each flat
 /// point's hierarchical support sphere; a point with fewer neighbours there keeps its
 /// hierarchical radius.
-fn density_radii(hier: &IndexedBasis, source: &[u32]) -> Vec<f32> {
+fn density_radii(hier: &IndexedBasis, source: &[u32], rule: &FlatRule) -> Vec<f32> {
     use rayon::prelude::*;
     let b = &hier.basis;
     let m = source.len();
     let hier_radii = source.iter().map(|&j| b.radii[j as usize]).collect();
     let (search, tree) = search_basis(hier, source, hier_radii);
+    let k = rule.neighbours as usize;
     (0..m)
         .into_par_iter()
         .map(|i| {
             let (x, n) = (search.positions[i], search.normals[i]);
-            let mut nearest = [f32::INFINITY; FLAT_NEIGHBOURS];
+            let mut buffer = [f32::INFINITY; MAX_NEIGHBOURS];
+            let nearest = &mut buffer[..k];
             tree.for_each_candidate(x, |q| {
                 let q = q as usize;
                 if q == i {
                     return;
                 }
                 let d = poisson_distance(x, n, search.positions[q], search.normals[q]);
-                if d < nearest[FLAT_NEIGHBOURS - 1] && d <= search.radii[q] {
-                    let mut at = FLAT_NEIGHBOURS - 1;
+                if d < nearest[k - 1] && d <= search.radii[q] {
+                    let mut at = k - 1;
                     while at > 0 && nearest[at - 1] > d {
                         nearest[at] = nearest[at - 1];
                         at -= 1;
@@ -243,9 +317,9 @@ fn density_radii(hier: &IndexedBasis, source: &[u32]) -> Vec<f32> {
                 }
             });
             let own = search.radii[i];
-            let kth = nearest[FLAT_NEIGHBOURS - 1];
+            let kth = nearest[k - 1];
             if kth.is_finite() && kth > 0.0 {
-                (FLAT_RADIUS_FACTOR * kth).min(own)
+                (rule.radius_factor * kth).min(own)
             } else {
                 own
             }
@@ -273,7 +347,7 @@ fn search_basis(hier: &IndexedBasis, source: &[u32], radii: Vec<f32>) -> (Basis,
 /// finest spacing) where the flat weights sum to less than [`HOLE_WEIGHT`] makes the nearest
 /// flat point (Eq. 11, among those whose hierarchical support holds it) reach it at
 /// [`HOLE_REACH`] of its radius. Deterministic: the proposals are combined by maximum.
-fn fill_holes(hier: &IndexedBasis, source: &[u32], radii: &mut [f32]) {
+fn fill_holes(hier: &IndexedBasis, source: &[u32], radii: &mut [f32], rule: &FlatRule) {
     use rayon::prelude::*;
     let b = &hier.basis;
     let (flat, flat_tree) = search_basis(hier, source, radii.to_vec());
@@ -287,7 +361,7 @@ fn fill_holes(hier: &IndexedBasis, source: &[u32], radii: &mut [f32]) {
         .into_par_iter()
         .filter_map(|j| {
             let (x, n) = (b.positions[j], b.normals[j]);
-            if flat_ib.weight_sum(0, x, n) >= HOLE_WEIGHT {
+            if flat_ib.weight_sum(0, x, n) >= rule.hole_weight {
                 return None;
             }
             let mut best = (f32::INFINITY, u32::MAX);
@@ -301,7 +375,7 @@ fn fill_holes(hier: &IndexedBasis, source: &[u32], radii: &mut [f32]) {
             (best.1 != u32::MAX).then(|| {
                 let q = best.1 as usize;
                 let d = crate::kernel::squashed_distance(x, search.positions[q], search.normals[q]);
-                (best.1, (d / HOLE_REACH).min(search.radii[q]))
+                (best.1, (d / rule.hole_reach).min(search.radii[q]))
             })
         })
         .collect();

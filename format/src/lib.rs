@@ -5,7 +5,8 @@
 //! - [`basis`]: the hierarchical point set; [`rtree`]: one R-tree per level;
 //! - [`shepard`]: per-level Shepard basis (Eq. 2) and hierarchical reconstruction (Eq. 6);
 //! - [`pull_push`]: coarse-to-fine projection `P` (Eq. 7) and pull-push `P-dagger`;
-//! - [`flat_basis`]: the single-level basis the viewer splats; [`flatten`]: resampling to a single level (the reference the viewer's precomputed
+//! - [`flat_basis`]: the single-level basis the viewer splats, stored in a file by
+//!   [`flat_section`]; [`flatten`]: resampling to a single level (the reference the viewer's precomputed
 //!   operator is tested against); [`adjacency`]: neighbours, parents, children; [`morton`]:
 //!   the point order;
 //! - [`links`]: the stored direct-to-indirect operator `S`;
@@ -22,6 +23,7 @@ pub mod container;
 pub mod error;
 pub mod file;
 pub mod flat_basis;
+pub mod flat_section;
 pub mod flatten;
 pub mod kernel;
 pub mod light;

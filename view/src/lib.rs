@@ -6,6 +6,7 @@
 pub mod camera;
 pub mod compare;
 pub mod exact;
+pub mod flat_check;
 pub mod frame;
 pub mod gpu;
 pub mod headless;

@@ -9,7 +9,9 @@
 //! - `view probe FILE --probe IN.csv --probe-out OUT.csv`: irradiance at given surface points;
 //! - `view timings FILE --frames N`: CPU relighting timings only;
 //! - `view reference INPUT --out DIR`: the brute-force path-traced reference of a file or scene;
-//! - `view compare REF TEST`: the error of a rendering (or probes) against the reference.
+//! - `view compare REF TEST`: the error of a rendering (or probes) against the reference;
+//! - `view flat FILE`: the flat basis in one view (functions per pixel, error against the
+//!   exact evaluation).
 
 mod cmd;
 
@@ -19,6 +21,7 @@ use anyhow::Result;
 use clap::{CommandFactory, Parser, Subcommand};
 
 use cmd::compare::CompareArgs;
+use cmd::flat::FlatArgs;
 use cmd::open::OpenArgs;
 use cmd::probe::ProbeCmdArgs;
 use cmd::reference::ReferenceArgs;
@@ -52,6 +55,9 @@ enum Command {
     Reference(ReferenceArgs),
     /// Compare a rendering (or probes) against the reference.
     Compare(CompareArgs),
+    /// Measure the flat basis in one view: coverage per pixel, error against the exact
+    /// evaluation.
+    Flat(FlatArgs),
 }
 
 /// The arguments with `open` inserted when the first one is neither a subcommand nor an
@@ -85,6 +91,7 @@ fn main() -> Result<()> {
         Command::Timings(a) => cmd::timings::run(a),
         Command::Reference(a) => cmd::reference::run(a),
         Command::Compare(a) => cmd::compare::run(a),
+        Command::Flat(a) => cmd::flat::run(a),
     }
 }
 

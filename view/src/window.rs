@@ -27,6 +27,7 @@ use crate::camera::Camera;
 use crate::frame::{FrameDriver, Redraw};
 use crate::gpu::mesh::GpuMesh;
 use crate::gpu::{Gpu, Renderer, ViewMode};
+use crate::headless::{light_on_path, median};
 use crate::images::{luminance, ToneMap};
 
 /// What the window starts from.
@@ -46,7 +47,14 @@ pub struct WindowSetup<'a> {
     /// (`window-MODE.png` in `screenshot_dir`) and close.
     pub exit_after_frames: Option<u32>,
     pub screenshot_dir: std::path::PathBuf,
+    /// For measurements: move the light every frame along a horizontal circle of this radius
+    /// around its position (the path of `view render --frames`, 60 frames a turn), so that
+    /// every frame relights and splats.
+    pub moving_light: Option<f32>,
 }
+
+/// Frames a turn of [`WindowSetup::moving_light`].
+const LIGHT_PATH_FRAMES: u32 = 60;
 
 /// True when a display server can be reached (this build talks X11; Wayland sessions provide
 /// it through XWayland).
@@ -110,6 +118,8 @@ struct State {
     tone_dirty: bool,
     last_tick: Instant,
     frame_times: Vec<f64>,
+    /// Every frame's time, for the median printed when the window closes by itself.
+    all_frame_times: Vec<f64>,
     stage: StageTimes,
     flat_max: f32,
     screenshots: u32,
@@ -200,6 +210,7 @@ impl App<'_> {
             tone_dirty: true,
             last_tick: Instant::now(),
             frame_times: Vec::new(),
+            all_frame_times: Vec::new(),
             stage: StageTimes::default(),
             flat_max: 1.0,
             screenshots: 0,
@@ -221,6 +232,9 @@ impl App<'_> {
         let dt = (now - s.last_tick).as_secs_f32().min(0.25);
         s.last_tick = now;
         move_with_keys(s, dt);
+        if let Some(radius) = self.setup.moving_light {
+            s.light = light_on_path(&self.setup.light, radius, s.frames, LIGHT_PATH_FRAMES);
+        }
 
         let mut driver = FrameDriver {
             gpu: &s.gpu,
@@ -274,6 +288,8 @@ impl App<'_> {
 
         s.frames += 1;
         s.frame_times.push(dt as f64);
+        s.all_frame_times
+            .push(f64::from((Instant::now() - now).as_secs_f32()));
         if s.frame_times.len() >= 10 {
             let mean = s.frame_times.iter().sum::<f64>() / s.frame_times.len() as f64;
             s.frame_times.clear();
@@ -557,6 +573,9 @@ impl ApplicationHandler for App<'_> {
             _ => false,
         };
         if done {
+            if let Some(s) = &self.state {
+                report_frame_times(&s.all_frame_times);
+            }
             if let Err(e) = self.save_every_view() {
                 self.error = Some(e);
             }
@@ -569,4 +588,20 @@ impl ApplicationHandler for App<'_> {
             s.window.request_redraw();
         }
     }
+}
+
+/// Prints the median time of the frames after the first (which also builds the G-buffer and
+/// the shadow maps) and its frame rate.
+fn report_frame_times(times: &[f64]) {
+    let rest = times.get(1..).unwrap_or_default().to_vec();
+    if rest.is_empty() {
+        return;
+    }
+    let n = rest.len();
+    let m = median(rest);
+    eprintln!(
+        "view: median frame time over {n} frames after the first: {:.1} ms ({:.2} fps)",
+        m * 1e3,
+        1.0 / m.max(1e-9)
+    );
 }

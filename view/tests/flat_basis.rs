@@ -7,23 +7,14 @@ mod common;
 
 use common::{bake_to, relight_file};
 use mlt_bake::BakeOptions;
-use mlt_view::exact::{dark_pixels, exact_indirect, flat_coverage, flat_indirect, surface_points};
+use mlt_view::exact::dark_pixels;
+use mlt_view::flat_check::FlatCheck;
 use mlt_view::images::luminance;
-use mlt_view::{Camera, RgbImage};
-
-/// Relative RMS difference of the luminances of `a` from `reference`.
-fn rel_rmse(a: &RgbImage, reference: &RgbImage) -> f64 {
-    let (mut num, mut den) = (0.0f64, 0.0f64);
-    for (x, y) in a.pixels.iter().zip(&reference.pixels) {
-        let (x, y) = (f64::from(luminance(*x)), f64::from(luminance(*y)));
-        num += (x - y).powi(2);
-        den += y * y;
-    }
-    (num / den).sqrt()
-}
+use mlt_view::Camera;
 
 /// Bakes the built-in Cornell box with `opts`, relights it with the file's light and checks
-/// the flat image of its default view at `w` x `h` against the exact evaluation.
+/// the flat image of its default view at `w` x `h` against the exact evaluation
+/// ([`FlatCheck`], what `view flat FILE` prints).
 /// With `check_blotch`, also that the exact image has no pixel darker than a quarter of its
 /// neighbourhood's median on its own surface (a dark blotch in the hierarchical solution
 /// itself). `rmse_max` bounds the flat image's relative RMSE from the exact one.
@@ -44,56 +35,37 @@ fn check_cornell(name: &str, opts: BakeOptions, w: u32, h: u32, check_blotch: bo
     let mut camera = Camera::from_info(&r.meta.camera).unwrap();
     camera.width = w;
     camera.height = h;
-    let points = surface_points(&camera, caster);
-    let surface = points.iter().filter(|p| p.is_some()).count();
-    assert!(surface > (w * h / 2) as usize, "{surface} surface pixels");
-
-    // Coverage: every surface pixel, a bounded number of flat functions.
-    let coverage = flat_coverage(fb, &points);
-    let counts: Vec<usize> = coverage.iter().flatten().copied().collect();
-    let uncovered = counts.iter().filter(|&&c| c == 0).count();
-    let mean = counts.iter().sum::<usize>() as f64 / counts.len() as f64;
-    let mut histogram = [0usize; 8];
-    for &c in &counts {
-        histogram[(c / 4).min(7)] += 1;
-    }
-    let exact = exact_indirect(ib, &frame.i, &points, w);
-    let flat = flat_indirect(fb, &frame.flat, &points, w);
-    let rmse = rel_rmse(&flat, &exact);
-    let max_lum = exact
+    let c = FlatCheck::measure(ib, &frame.i, fb, &frame.flat, &camera, caster);
+    assert!(
+        c.surface_pixels > (w * h / 2) as usize,
+        "{} surface pixels",
+        c.surface_pixels
+    );
+    let max_lum = c
+        .exact
         .pixels
         .iter()
         .map(|p| luminance(*p))
         .fold(0.0, f32::max);
-    let floor = 1e-3 * max_lum;
-    // Flattening adds no dark spot: no flat pixel below a quarter of the exact one.
-    let darker: Vec<usize> = (0..flat.pixels.len())
-        .filter(|&k| {
-            let e = luminance(exact.pixels[k]);
-            e > floor && luminance(flat.pixels[k]) < 0.25 * e
-        })
-        .collect();
-    let dark_exact = dark_pixels(&exact, &points, 3, 0.25, floor);
+    let dark_exact = dark_pixels(&c.exact, &c.points, 3, 0.25, 1e-3 * max_lum);
     eprintln!(
-        "{name}: {} of {} points flat, {surface} surface pixels, coverage mean {mean:.2}, \
-         histogram by 4 {histogram:?}, uncovered {uncovered}; flat vs exact relative RMSE \
-         {rmse:.4}; flat pixels darker than a quarter of the exact {}; exact pixels darker \
-         than a quarter of their neighbourhood {}",
-        fb.len(),
-        ib.basis.len(),
-        darker.len(),
+        "{name}: {}exact pixels darker than a quarter of their neighbourhood {}",
+        c.summary(),
         dark_exact.len()
     );
-    assert_eq!(uncovered, 0, "surface pixels without a flat function");
-    assert!(mean <= 12.0, "mean coverage {mean}");
+    // Coverage: every surface pixel, a bounded number of flat functions.
+    assert_eq!(c.uncovered, 0, "surface pixels without a flat function");
+    assert!(c.coverage_mean <= 12.0, "mean coverage {}", c.coverage_mean);
     assert!(
-        rmse < rmse_max,
-        "flat image differs from the exact one by {rmse}"
+        c.rel_rmse < rmse_max,
+        "flat image differs from the exact one by {}",
+        c.rel_rmse
     );
+    // Flattening adds no dark spot: no flat pixel below a quarter of the exact one.
     assert!(
-        darker.is_empty(),
+        c.darker.is_empty(),
         "flattening darkens pixels {:?}",
-        &darker[..darker.len().min(10)]
+        &c.darker[..c.darker.len().min(10)]
     );
     if !check_blotch {
         return;

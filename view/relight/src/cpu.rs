@@ -29,6 +29,7 @@ use std::time::Instant;
 
 use glam::Vec3;
 use mlt_format::flat_basis::FlatBasis;
+use mlt_format::flat_section::linked_flags;
 use mlt_format::links::{ArchivedLinks, LINK_DIM};
 use mlt_format::IndexedBasis;
 use mlt_scenes::RayCaster;
@@ -48,10 +49,14 @@ use crate::support_average::{near_weight, SupportAverage};
 pub struct LoadStats {
     /// Wall time of [`CpuRelighter::new`], milliseconds.
     pub build_ms: f64,
-    /// Of which the flat basis and the flattening operator.
+    /// Of which the flat basis (when built) and the flattening operator.
     pub flatten_build_ms: f64,
+    /// Wall time of [`CpuRelighter::build_support_tables`] when it was called, milliseconds.
+    pub support_tables_ms: f64,
     /// Points of the flat basis (of the hierarchical basis's points).
     pub flat_points: usize,
+    /// Whether the flat basis was read from the file (`FLAT`) rather than built.
+    pub flat_stored: bool,
     /// Columns and entries of the flattening operator, and its heap bytes.
     pub flatten_columns: usize,
     pub flatten_entries: usize,
@@ -114,8 +119,23 @@ impl<'a> CpuRelighter<'a> {
         sender_levels: usize,
         shadow_rays: u32,
     ) -> Result<CpuRelighter<'a>, RelightError> {
+        Self::with_flat_basis(ib, links, caster, sender_levels, shadow_rays, None)
+    }
+
+    /// [`CpuRelighter::new`] with the flat basis given (as a file's `FLAT` section stores it,
+    /// [`mlt_format::BakedFile::flat_basis`]) instead of built; `None` builds it. A given flat
+    /// basis must be the one of `ib` and the receivers of `links`.
+    pub fn with_flat_basis(
+        ib: &'a IndexedBasis,
+        links: &'a ArchivedLinks,
+        caster: &'a dyn RayCaster,
+        sender_levels: usize,
+        shadow_rays: u32,
+        stored: Option<FlatBasis>,
+    ) -> Result<CpuRelighter<'a>, RelightError> {
         let t0 = Instant::now();
         let sender_levels = sender_levels.min(ib.levels());
+        let flat_stored = stored.is_some();
         let ((pull_push, receiver_links), (flat, flatten_op, flatten_build_ms)) = rayon::join(
             || {
                 rayon::join(
@@ -126,14 +146,14 @@ impl<'a> CpuRelighter<'a> {
             || {
                 let t = Instant::now();
                 // Only receivers with links can have a non-zero coefficient.
-                let mut keep = vec![false; ib.basis.len()];
-                for r in 0..links.receiver_ids.len() {
-                    let r = links.receiver_ids[r].to_native() as usize;
-                    if let Some(k) = keep.get_mut(r) {
-                        *k = true;
-                    }
-                }
-                let flat = FlatBasis::build(ib, Some(&keep));
+                let keep = linked_flags(
+                    ib.basis.len(),
+                    links.receiver_ids.iter().map(|r| r.to_native()),
+                );
+                let flat = match stored {
+                    Some(flat) => Ok(flat),
+                    None => FlatBasis::build(ib, Some(&keep)),
+                };
                 let op = flat
                     .as_ref()
                     .ok()
@@ -146,7 +166,9 @@ impl<'a> CpuRelighter<'a> {
         let load = LoadStats {
             build_ms: t0.elapsed().as_secs_f64() * 1e3,
             flatten_build_ms,
+            support_tables_ms: 0.0,
             flat_points: flat.len(),
+            flat_stored,
             flatten_columns: flatten_op.as_ref().map_or(0, FlattenOp::columns),
             flatten_entries: flatten_op.as_ref().map_or(0, FlattenOp::entries),
             flatten_bytes: flatten_op.as_ref().map_or(0, FlattenOp::bytes),
@@ -181,6 +203,15 @@ impl<'a> CpuRelighter<'a> {
     /// The precomputed flattening operator (absent only when too large for 32-bit offsets).
     pub fn flatten_op(&self) -> Option<&FlattenOp> {
         self.flatten_op.as_ref()
+    }
+
+    /// Tabulates now the basis functions of every sender point whose direct sample is used,
+    /// for the support averages near the light (step 1), which frames otherwise tabulate on
+    /// first use: the first frames near a surface then cost no more than the others.
+    pub fn build_support_tables(&mut self) {
+        let t = Instant::now();
+        self.support.build_tables(&self.sample_used);
+        self.load.support_tables_ms = t.elapsed().as_secs_f64() * 1e3;
     }
 
     /// What building the operators cost.

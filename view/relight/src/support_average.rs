@@ -96,6 +96,18 @@ impl<'a> SupportAverage<'a> {
         }
     }
 
+    /// Builds now, in parallel, the tables of the points `j` with `wanted[j]` (as a frame near
+    /// them would on first use), so that no frame pays for them.
+    pub fn build_tables(&self, wanted: &[bool]) {
+        use rayon::prelude::*;
+        (0..self.tables.len().min(wanted.len()))
+            .into_par_iter()
+            .filter(|&j| wanted[j])
+            .for_each(|j| {
+                self.table(j);
+            });
+    }
+
     /// Heap bytes of the tables built so far.
     pub fn bytes(&self) -> usize {
         let built = self.tables.iter().filter(|t| t.get().is_some()).count();
@@ -193,8 +205,8 @@ impl<'a> SupportAverage<'a> {
         } else {
             (0.0, TAU)
         };
-        let ratio = (rho1 + h) / (rho0 + h);
-        let radius = |u: f64| (rho0 + h) * ratio.powf(u) - h;
+        // Ring `a` spans the radii `(rho0 + h) q^a - h` to `(rho0 + h) q^(a+1) - h`.
+        let q = ((rho1 + h) / (rho0 + h)).powf(1.0 / RINGS as f64);
         let cosine = |rho: f64| h / (h * h + rho * rho).sqrt();
         // The radius at which the cosine of the angle from the normal is `c`.
         let radius_of = |c: f64| (h * (1.0 / (c * c) - 1.0).max(0.0).sqrt()) as f32;
@@ -202,35 +214,40 @@ impl<'a> SupportAverage<'a> {
         let table = self.table(j);
         let cell = 2.0 * r / GRID as f32;
         let foot_uv = (-to_p.dot(t), -to_p.dot(bt));
+        // The sectors' middle directions, by rotation from the first: on a full circle every
+        // other ring is turned by half a sector.
+        let step = (sector.cos(), sector.sin());
+        let directions = |turn: f64| {
+            let a = phi0 + sector * turn;
+            let mut d = (a.cos(), a.sin());
+            std::array::from_fn::<(f64, f64, f64), SECTORS, _>(|k| {
+                let here = d;
+                d = (d.0 * step.0 - d.1 * step.1, d.0 * step.1 + d.1 * step.0);
+                (here.0, here.1, a + sector * k as f64)
+            })
+        };
+        let (even, odd) = if span < TAU {
+            let d = directions(0.5);
+            (d, d)
+        } else {
+            (directions(0.0), directions(0.5))
+        };
         let mut acc = 0.0f64;
+        let mut outer = rho0 + h;
+        let mut cb = cosine(rho0);
         for a in 0..RINGS {
-            let (ca, cb) = (
-                cosine(radius(a as f64 / RINGS as f64)),
-                cosine(radius((a + 1) as f64 / RINGS as f64)),
-            );
+            let ca = cb;
+            outer *= q;
+            cb = cosine(outer - h);
             let solid_angle = (ca - cb) * sector;
             // The middle of the ring in solid angle.
             let rho = radius_of(0.5 * (ca + cb));
-            // On a full circle the rings are turned against each other.
-            let turn = if span < TAU {
-                0.5
-            } else {
-                0.5 * (a % 2) as f64
-            };
-            for k in 0..SECTORS {
-                let phi = (phi0 + sector * (k as f64 + turn)) as f32;
-                let (u, v) = (foot_uv.0 + rho * phi.cos(), foot_uv.1 + rho * phi.sin());
+            let dirs = if a % 2 == 0 { &even } else { &odd };
+            for &(cos, sin, phi) in dirs {
+                let (u, v) = (foot_uv.0 + rho * cos as f32, foot_uv.1 + rho * sin as f32);
                 let value = bilinear(&table.values, (u + r) / cell - 0.5, (v + r) / cell - 0.5);
                 if value > 0.0 {
-                    let cone = cone_average(
-                        light,
-                        foot,
-                        (t, bt),
-                        f64::from(phi),
-                        sector,
-                        (ca, cb),
-                        radius_of,
-                    );
+                    let cone = cone_average(light, foot, (t, bt), phi, sector, (ca, cb), radius_of);
                     acc += f64::from(value * cone) * solid_angle;
                 }
             }

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 use glam::Vec3;
+use mlt_format::flat_basis::FlatRule;
 use mlt_view::camera::parse_vec3;
 use mlt_view::gpu::Gpu;
 
@@ -77,6 +78,29 @@ pub struct RelightArgs {
     /// surfaces next to the light).
     #[arg(long)]
     pub point_samples: bool,
+    /// For experiments: build the flat basis with this neighbour count and radius factor
+    /// (`K,F`: each flat radius F times the distance to the K-th nearest flat point) instead
+    /// of reading the file's or building it by the default rule.
+    #[arg(long, value_parser = parse_flat_rule)]
+    pub flat_rule: Option<FlatRule>,
+}
+
+/// `K,F` for [`RelightArgs::flat_rule`].
+fn parse_flat_rule(s: &str) -> Result<FlatRule, String> {
+    let (k, f) = s
+        .split_once(',')
+        .ok_or_else(|| format!("expected K,F (e.g. 4,1.6), got {s}"))?;
+    let k: u32 = k.trim().parse().map_err(|e| format!("{k}: {e}"))?;
+    let f: f32 = f.trim().parse().map_err(|e| format!("{f}: {e}"))?;
+    let max = mlt_format::flat_basis::MAX_NEIGHBOURS as u32;
+    if !((1..=max).contains(&k) && f > 0.0 && f.is_finite()) {
+        return Err(format!("K must be 1 to {max} and F positive, got {s}"));
+    }
+    Ok(FlatRule {
+        neighbours: k,
+        radius_factor: f,
+        ..FlatRule::current()
+    })
 }
 
 /// How the GPU renders.

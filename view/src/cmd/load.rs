@@ -6,6 +6,9 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 use glam::Vec3;
+use mlt_format::flat_basis::{FlatBasis, FlatRule};
+use mlt_format::flat_section::{linked_flags, StoredFlat};
+use mlt_format::links::ArchivedLinks;
 use mlt_format::meta::CameraInfo;
 use mlt_format::{BakedFile, IndexedBasis, Meta};
 use mlt_scenes::{RayCaster, Scene};
@@ -73,16 +76,24 @@ pub fn with_viewing<T>(args: &BakedArgs, f: impl FnOnce(Viewing<'_>) -> Result<T
     let caster = setting.scene.build_caster();
 
     let sender_levels = tm.params.sender_levels as usize;
-    let mut relighter = CpuRelighter::new(
+    let stored = match relight.flat_rule {
+        Some(rule) => Some(flat_basis_by(&ib, links, rule)?),
+        None => stored_flat_basis(&file, &ib, links)?,
+    };
+    let mut relighter = CpuRelighter::with_flat_basis(
         &ib,
         links,
         caster.as_ref(),
         sender_levels,
         relight.shadow_rays,
+        stored,
     )
     .context("building the relighting operators")?;
     relighter.adaptive_shadows = !relight.all_shadow_rays;
     relighter.support_average = !relight.point_samples;
+    if relighter.support_average {
+        relighter.build_support_tables();
+    }
     if relighter.flatten_op().is_some() && !relighter.load_stats().points_in_morton_order {
         eprintln!(
             "note: {} stores its points in an older order; baking it again makes CPU flattening \
@@ -101,6 +112,41 @@ pub fn with_viewing<T>(args: &BakedArgs, f: impl FnOnce(Viewing<'_>) -> Result<T
         sender_levels,
         relighter,
     })
+}
+
+/// The flat basis stored in `file` (`FLAT`, format 1.5), checked against its basis and links;
+/// `None` (build it) for older files and for a section built by another rule than this
+/// build's. A malformed or inconsistent section is an error naming the file.
+fn stored_flat_basis(
+    file: &BakedFile,
+    ib: &IndexedBasis,
+    links: &ArchivedLinks,
+) -> Result<Option<FlatBasis>> {
+    let linked = linked_flags(
+        ib.basis.len(),
+        links.receiver_ids.iter().map(|r| r.to_native()),
+    );
+    Ok(match file.flat_basis(ib, &linked)? {
+        StoredFlat::Stored(flat) => Some(flat),
+        StoredFlat::Absent => None,
+        StoredFlat::OtherRule(rule) => {
+            eprintln!(
+                "note: {} stores a flat basis built by another rule ({rule:?}); building it \
+                 by this build's rule",
+                file.path().display()
+            );
+            None
+        }
+    })
+}
+
+/// The flat basis of `ib` for the receivers of `links` built by `rule`.
+fn flat_basis_by(ib: &IndexedBasis, links: &ArchivedLinks, rule: FlatRule) -> Result<FlatBasis> {
+    let linked = linked_flags(
+        ib.basis.len(),
+        links.receiver_ids.iter().map(|r| r.to_native()),
+    );
+    FlatBasis::build_with(ib, Some(&linked), rule).context("building the flat basis")
 }
 
 /// The setting of `input`: a baked `.mlt` file's (its scene, camera and light) or a scene

@@ -3,6 +3,7 @@
 
 pub mod args;
 pub mod compare;
+pub mod flat;
 pub mod load;
 pub mod open;
 pub mod probe;

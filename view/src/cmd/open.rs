@@ -22,10 +22,16 @@ pub struct OpenArgs {
     /// Where the window saves screenshots (P key).
     #[arg(long, default_value = ".")]
     pub screenshot_dir: PathBuf,
+    /// For measurements: move the light every frame on the circle of `view render --frames`
+    /// (radius 5 % of the scene's diagonal), so that every frame relights and splats; with
+    /// --exit-after-frames, the median frame time is printed.
+    #[arg(long)]
+    pub moving_light: bool,
 }
 
 pub fn run(args: &OpenArgs) -> Result<()> {
     with_viewing(&args.baked, |mut v| {
+        let moving_light = args.moving_light.then(|| v.path_radius());
         mlt_view::window::run(mlt_view::window::WindowSetup {
             title: format!("view {}", v.path.display()),
             scene: v.scene,
@@ -38,6 +44,7 @@ pub fn run(args: &OpenArgs) -> Result<()> {
             gpu_flatten: args.gpu.flatten.choice(),
             exit_after_frames: args.exit_after_frames,
             screenshot_dir: args.screenshot_dir.clone(),
+            moving_light,
         })
     })
 }

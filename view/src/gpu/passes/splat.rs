@@ -1,15 +1,19 @@
 //! The splatting pass: every flat basis function that survives frustum culling (one level, on
 //! the points the solution needs, each with a radius from the local density of the flat
 //! points: `mlt_format::flat_basis`) is drawn as a footprint bounding its support sphere;
-//! covered pixels accumulate, with additive blending, `w_j` (Eq. 8) and `w_j c_j`.
+//! covered pixels accumulate, with additive blending, `w_j` (Eq. 8) and `w_j c_j`. The
+//! footprint lies at the depth of the support sphere's nearest point and is depth-tested
+//! (without writing) against the G-buffer's depth: where the visible surface is in front of
+//! the whole support, the pixel is rejected before the weight is evaluated.
 
 use wgpu::ShaderStages as Stages;
 
 use crate::gpu::pipeline::{
-    additive, begin, color_target, module, pipeline, PipelineSpec, Slot, TargetBinding, VS_FS,
+    additive, begin, color_target, depth_attachment, depth_state, module, pipeline, PipelineSpec,
+    Slot, TargetBinding, VS_FS,
 };
 use crate::gpu::scene_buffers::SceneBuffers;
-use crate::gpu::targets::{Target, Targets};
+use crate::gpu::targets::{Target, Targets, DEPTH_FORMAT};
 
 const SPLAT: &str = include_str!("../shaders/splat.wgsl");
 
@@ -32,7 +36,11 @@ impl SplatPass {
         let module = module(device, "splat", SPLAT);
         let targets = [0; 3].map(|_| color_target(acc_format, Some(additive())));
         let strip = wgpu::PrimitiveTopology::TriangleStrip;
-        let spec = PipelineSpec::procedural("splat", binding.layout(), &module, strip, &targets);
+        let mut spec =
+            PipelineSpec::procedural("splat", binding.layout(), &module, strip, &targets);
+        // Reversed depth: a footprint passes where the visible surface is not nearer than its
+        // support sphere's nearest point.
+        spec.depth = depth_state(DEPTH_FORMAT, false, wgpu::CompareFunction::GreaterEqual);
         SplatPass {
             pipeline: pipeline(device, spec),
             binding,
@@ -55,7 +63,8 @@ impl SplatPass {
     /// Clears the sums of `t` and splats the first `visible` points of the visible list.
     pub fn encode(&self, enc: &mut wgpu::CommandEncoder, t: &Targets, visible: usize) {
         let colors = [&t.acc[0], &t.acc[1], &t.acc[2]].map(Target::cleared);
-        let mut pass = begin(enc, "splat", &colors, None);
+        let depth = depth_attachment(&t.depth.view, wgpu::LoadOp::Load);
+        let mut pass = begin(enc, "splat", &colors, depth);
         if let (Some(bg), true) = (self.binding.group(), visible > 0) {
             pass.set_pipeline(&self.pipeline);
             pass.set_bind_group(0, bg, &[]);

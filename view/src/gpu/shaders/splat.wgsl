@@ -33,8 +33,9 @@ fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VsOut
     let r = p.pos_r.w;
     let to_c = c - g.cam_pos.xyz;
     let d = length(to_c);
-    // By default the whole screen: for supports that reach the camera or its near plane.
-    var clip = vec4<f32>(corner, 0.5, 1.0);
+    // By default the whole screen, at the near plane (reversed depth 1: never rejected by the
+    // depth test): for supports that reach the camera or its near plane.
+    var clip = vec4<f32>(corner, 1.0, 1.0);
     if d > r * 1.001 {
         let dir = to_c / d;
         // The cone of rays tangent to the support sphere cuts the plane through its centre,
@@ -50,7 +51,10 @@ fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VsOut
             let v = cross(u, dir);
             let w = c + (u * corner.x + v * corner.y) * s;
             let q = g.view_proj * vec4<f32>(w, 1.0);
-            clip = vec4<f32>(q.xy, 0.5 * q.w, q.w);
+            // The depth of the sphere's nearest point (view depth `depth - r`), the same over
+            // the whole footprint, for the depth test against the G-buffer.
+            let f = g.view_proj * vec4<f32>(c - g.cam_forward.xyz * r, 1.0);
+            clip = vec4<f32>(q.xy, min(f.z / f.w, 1.0) * q.w, q.w);
         }
     }
     var out: VsOut;

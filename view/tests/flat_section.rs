@@ -1,0 +1,194 @@
+//! The `FLAT` section (format 1.5): a bake stores the flat basis that `FlatBasis::build` gives
+//! for its basis and links; the viewer reads it instead of building it, renders the same image
+//! from a file without it (format 1.4), and refuses a damaged or inconsistent one with an
+//! error naming the file.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+use common::bake_to;
+use mlt_bake::BakeOptions;
+use mlt_format::container::VERSION_MINOR;
+use mlt_format::flat_basis::FlatBasis;
+use mlt_format::flat_section::{linked_flags, StoredFlat};
+use mlt_format::{BakeContents, BakedFile, FormatError, WriteOptions};
+
+fn small_opts() -> BakeOptions {
+    BakeOptions {
+        receiver_levels: Some(4),
+        coarse_count: Some(40),
+        gather_rays: Some(64),
+        ..Default::default()
+    }
+}
+
+/// The file's basis, contents and the link flags of its links.
+fn open(path: &Path) -> (BakedFile, BakeContents, Vec<bool>) {
+    let file = BakedFile::open(path).unwrap();
+    let contents = file.contents().unwrap();
+    let links = &contents.transport.as_ref().unwrap().links;
+    let linked = linked_flags(
+        contents.basis.basis.len(),
+        links.receiver_ids.iter().copied(),
+    );
+    (file, contents, linked)
+}
+
+/// `contents` written as format `minor` (the header's version patched and re-hashed).
+fn write_as(path: &Path, contents: &BakeContents, minor: u16) {
+    let mut bytes = mlt_format::file::encode(contents, WriteOptions::default()).unwrap();
+    bytes[10..12].copy_from_slice(&minor.to_le_bytes());
+    rehash(&mut bytes);
+    std::fs::write(path, bytes).unwrap();
+}
+
+fn rehash(bytes: &mut [u8]) {
+    use xxhash_rust::xxh3::xxh3_64;
+    let header_len = u32::from_le_bytes(bytes[16..20].try_into().unwrap()) as usize;
+    let payload = xxh3_64(&bytes[header_len..]);
+    bytes[32..40].copy_from_slice(&payload.to_le_bytes());
+    bytes[40..48].fill(0);
+    let h = xxh3_64(&bytes[..header_len]);
+    bytes[40..48].copy_from_slice(&h.to_le_bytes());
+}
+
+/// `view render FILE` at 48x36; the output and the directory of its images.
+fn render(file: &Path, out: &Path) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_view"))
+        .arg("render")
+        .arg(file)
+        .arg("--out")
+        .arg(out)
+        .args(["--width", "48", "--height", "36"])
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn a_bake_stores_the_flat_basis_and_the_viewer_reads_it() {
+    let d = common::temp_dir("flat_section", "stored");
+    let f = d.join("cornell.mlt");
+    bake_to(&f, "builtin:cornell", small_opts());
+    let (file, contents, linked) = open(&f);
+    assert_eq!(file.header().minor, VERSION_MINOR);
+    let built = FlatBasis::build(&contents.basis, Some(&linked)).unwrap();
+    assert!(built.len() < contents.basis.basis.len());
+    match file.flat_basis(&contents.basis, &linked).unwrap() {
+        StoredFlat::Stored(stored) => assert_eq!(stored, built),
+        other => panic!("no stored flat basis: {other:?}"),
+    }
+
+    // The same file as format 1.4, without the section: the viewer builds the flat basis
+    // and renders the same image.
+    let old = d.join("old.mlt");
+    let mut without = contents.clone();
+    without.flat = None;
+    write_as(&old, &without, 4);
+    let (old_file, _, _) = open(&old);
+    assert!(matches!(
+        old_file.flat_basis(&contents.basis, &linked).unwrap(),
+        StoredFlat::Absent
+    ));
+    let (a, b) = (d.join("a"), d.join("b"));
+    for (file, out) in [(&f, &a), (&old, &b)] {
+        let r = render(file, out);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    }
+    let stored_flag = |dir: &Path| {
+        let t = std::fs::read_to_string(dir.join("timings.json")).unwrap();
+        let json: serde_json::Value = serde_json::from_str(&t).unwrap();
+        json["load"]["flat_stored"].as_bool().unwrap()
+    };
+    assert!(stored_flag(&a));
+    assert!(!stored_flag(&b));
+    for image in ["final.exr", "indirect.exr"] {
+        let (x, y) = (
+            std::fs::read(a.join(image)).unwrap(),
+            std::fs::read(b.join(image)).unwrap(),
+        );
+        assert!(x == y, "{image} differs with and without the FLAT section");
+    }
+}
+
+/// A flat section that does not belong to the file's basis and links, or that is malformed,
+/// is an error naming the file and the section, from the library and from `view`.
+#[test]
+fn an_inconsistent_flat_section_is_an_error_naming_the_file() {
+    let d = common::temp_dir("flat_section", "inconsistent");
+    let f = d.join("cornell.mlt");
+    bake_to(&f, "builtin:cornell", small_opts());
+    let (_, contents, linked) = open(&f);
+    let n = contents.basis.basis.len() as u32;
+    let flat = contents.flat.clone().unwrap();
+    type Damage = fn(&mut mlt_format::flat_section::FlatSection, u32);
+    let damages: [(&str, Damage); 6] = [
+        ("out of range", |s, n| s.source[0] = n + 3),
+        ("repeated", |s, _| s.source[1] = s.source[0]),
+        ("radius", |s, _| s.radii[2] = f32::NAN),
+        ("radii", |s, _| {
+            s.radii.pop();
+        }),
+        ("other linked receivers", |s, _| s.linked_key ^= 1),
+        ("hierarchical points", |s, _| s.points += 1),
+    ];
+    for (what, damage) in damages {
+        let mut c = contents.clone();
+        let mut s = flat.clone();
+        damage(&mut s, n);
+        c.flat = Some(s);
+        let p = d.join("bad.mlt");
+        write_as(&p, &c, VERSION_MINOR);
+        let file = BakedFile::open(&p).unwrap();
+        let e = file
+            .flat_basis(&contents.basis, &linked)
+            .expect_err(what)
+            .to_string();
+        assert!(
+            e.contains("bad.mlt") && e.contains("FLAT") && e.contains(what),
+            "{what}: {e}"
+        );
+    }
+    // A tree that does not bound its points.
+    let mut c = contents.clone();
+    let mut s = flat.clone();
+    s.tree.node_first[0] = 1_000_000;
+    c.flat = Some(s);
+    let p = d.join("tree.mlt");
+    write_as(&p, &c, VERSION_MINOR);
+    let e = BakedFile::open(&p)
+        .unwrap()
+        .flat_basis(&contents.basis, &linked)
+        .expect_err("forged tree");
+    assert!(matches!(e, FormatError::BadSection { .. }), "{e}");
+    assert!(e.to_string().contains("tree.mlt"), "{e}");
+
+    // The section's bytes damaged and the checksums recomputed: rkyv's validation or the
+    // checks refuse it; never a panic. From `view`, the error names the file.
+    let mut bytes = std::fs::read(&f).unwrap();
+    let header = mlt_format::container::parse_header(&f, &bytes).unwrap();
+    let entry = header.sections.iter().find(|e| &e.tag == b"FLAT").unwrap();
+    let at = entry.offset as usize + entry.stored_len as usize - 4;
+    bytes[at..at + 4].copy_from_slice(&u32::MAX.to_le_bytes());
+    rehash(&mut bytes);
+    let p = d.join("damaged.mlt");
+    std::fs::write(&p, bytes).unwrap();
+    let e = BakedFile::open(&p)
+        .unwrap()
+        .flat_basis(&contents.basis, &linked)
+        .expect_err("damaged section");
+    assert!(e.to_string().contains("damaged.mlt"), "{e}");
+    let r = Command::new(env!("CARGO_BIN_EXE_view"))
+        .arg("timings")
+        .arg(&p)
+        .args(["--frames", "1"])
+        .output()
+        .unwrap();
+    assert!(!r.status.success());
+    let stderr = String::from_utf8_lossy(&r.stderr);
+    assert!(
+        stderr.contains("damaged.mlt") && stderr.contains("FLAT"),
+        "{stderr}"
+    );
+}
