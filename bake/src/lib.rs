@@ -10,6 +10,7 @@
 
 pub mod batch;
 pub mod candidates;
+pub mod drop_estimate;
 pub mod error;
 pub mod gather;
 pub mod grid;

@@ -24,7 +24,7 @@ use mlt_format::IndexedBasis;
 use rayon::prelude::*;
 
 use crate::gather::link_norm;
-use crate::refine::ReceiverLinks;
+use crate::refine::{keep_within_budget, ReceiverLinks, UPPER_DETAIL_LEVELS};
 
 /// One row of links: `(sender, value)`, ascending by sender.
 pub type Row = Vec<(u32, [f32; LINK_DIM])>;
@@ -140,8 +140,10 @@ pub fn series(
     mut on_bounce: impl FnMut(u32, usize),
 ) -> (Rows, SeriesReport) {
     let n0 = ib.basis.level_range(0).len();
+    let upper_end = ib.basis.level_offsets[(UPPER_DETAIL_LEVELS + 1).min(ib.levels())];
+    let upper_rows = t.rows.iter().take_while(|&&r| r < upper_end).count();
     let out_rows = match receivers {
-        BounceReceivers::Coarsest => n0,
+        BounceReceivers::Coarsest => upper_rows,
         BounceReceivers::All => t.rows.len(),
     };
     let mut report = SeriesReport {
@@ -158,7 +160,10 @@ pub fn series(
             .into_par_iter()
             .map_init(
                 || ProductScratch::new(senders),
-                |scratch, row_index| product_row(ib, t, &y, n0, epsilon, scratch, row_index),
+                |scratch, row_index| {
+                    let budget = row_index >= n0 && row_index < upper_rows;
+                    product_row(ib, t, &y, n0, epsilon, budget, scratch, row_index)
+                },
             )
             .collect();
         let rows = record_bounce(ib, n0, b, products, &mut report);
@@ -256,13 +261,16 @@ impl ProductScratch {
 }
 
 /// Row `row_index` of the next bounce, `X_b[i][s] = sum_j K[i][j] Y[j][s]`, truncated below
-/// `epsilon` (the scratch is left cleared).
+/// `epsilon`; with `budget` (rows of the upper detail levels) the links below epsilon are
+/// kept by the budget rule instead ([`keep_within_budget`]). The scratch is left cleared.
+#[allow(clippy::too_many_arguments)]
 fn product_row(
     ib: &IndexedBasis,
     t: &ReceiverLinks,
     y: &[Vec<(u32, [f32; 3])>],
     n0: usize,
     epsilon: f32,
+    budget: bool,
     scratch: &mut ProductScratch,
     row_index: usize,
 ) -> Product {
@@ -300,6 +308,7 @@ fn product_row(
     } else {
         [0.0; 3]
     };
+    let mut small: Vec<(u32, f32)> = Vec::new();
     for &s in touched.iter() {
         let v = acc[s as usize];
         let nrm = link_norm(&v);
@@ -311,7 +320,16 @@ fn product_row(
         let base = row_index < n0 && (s as usize) < n0 && nrm > 0.0;
         if nrm > epsilon || base {
             row.push((s, v));
+        } else if budget && nrm > 0.0 && (s as usize) < n0 {
+            small.push((s, nrm));
         }
+    }
+    let kept = keep_within_budget(&mut small, epsilon);
+    if kept > 0 {
+        row.extend(small[..kept].iter().map(|&(s, _)| (s, acc[s as usize])));
+        row.sort_unstable_by_key(|l| l.0);
+    }
+    for &s in touched.iter() {
         acc[s as usize] = [0.0; LINK_DIM];
         mark[s as usize] = false;
     }

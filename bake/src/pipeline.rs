@@ -7,6 +7,7 @@ use mlt_format::meta::{
     BasisParams, BasisStats, CameraInfo, LightInfo, Meta, SceneInfo, Timings, TransportParams,
     TransportTimings,
 };
+use mlt_format::light::LightDesc;
 use mlt_format::shard::ShardSection;
 use mlt_format::shepard::MIN_WEIGHT_SUM;
 use mlt_format::{BakeContents, IndexedBasis, Transport};
@@ -158,6 +159,7 @@ pub fn bake_scene(
     let stage = transport_stage(
         basis.ib,
         caster.as_ref(),
+        &scene.light,
         &opts,
         transport_params,
         policy,
@@ -218,10 +220,13 @@ struct TransportStage {
 }
 
 /// The transport (section 3): none for a basis-only bake, T's rows of one shard for a shard
-/// bake (whose file key mixes in the shard), else S.
+/// bake (whose file key mixes in the shard), else S. `light` is the representative emission
+/// of the estimate of what refinement drops (`drop_estimate`).
+#[allow(clippy::too_many_arguments)]
 fn transport_stage(
     mut ib: IndexedBasis,
     caster: &dyn RayCaster,
+    light: &LightDesc,
     opts: &BakeOptions,
     transport_params: TransportParams,
     policy: BouncePolicy,
@@ -236,7 +241,7 @@ fn transport_stage(
     if let (false, Some((index, count))) = (opts.basis_only, opts.shard) {
         let owner = owners(&ib, count);
         let need = needed(&ib, &owner, index);
-        let (t, _, _) = refine_t(&ib, caster, &transport_params, Some(&need), obs);
+        let (t, _, _) = refine_t(&ib, caster, &transport_params, light, Some(&need), obs);
         shard = Some(shard_section(
             &ib,
             &t,
@@ -248,7 +253,7 @@ fn transport_stage(
         ));
         file_key = mix64(key ^ mix64(((index as u64) << 32) | count as u64));
     } else if !opts.basis_only {
-        let out = compute_transport(&ib, caster, transport_params, policy, obs)?;
+        let out = compute_transport(&ib, caster, transport_params, policy, light, obs)?;
         warnings = out.warnings;
         if out.levels_stored < ib.levels() {
             let placed = ib.levels();

@@ -39,7 +39,12 @@ use mlt_format::IndexedBasis;
 use mlt_scenes::RayCaster;
 use rayon::prelude::*;
 
+use crate::drop_estimate::link_light;
 use crate::gather::{gather, link_distance, link_norm, GatherCounts, Scratch};
+
+/// Receiver levels `1..=UPPER_DETAIL_LEVELS` keep their links to coarsest senders by the
+/// budget rule ([`keep_within_budget`]) and carry bounces 2 and later (see `neumann`).
+pub const UPPER_DETAIL_LEVELS: usize = 1;
 
 /// Receiver-major links of T: one row per processed receiver.
 #[derive(Clone, Debug, Default)]
@@ -54,6 +59,9 @@ pub struct ReceiverLinks {
     pub values: Vec<[f32; LINK_DIM]>,
     /// Per row: gather hits where a sender level had no support.
     pub unsupported: Vec<u64>,
+    /// Per row: the light of its kept links and of its dropped links under the
+    /// representative emission, RGB each (see `drop_estimate`).
+    pub drop_light: Vec<[f64; 6]>,
 }
 
 pub const NONE: u32 = u32::MAX;
@@ -82,10 +90,17 @@ impl ReceiverLinks {
     }
 
     /// Appends the row of `receiver`.
-    pub fn push_row(&mut self, receiver: u32, links: &[(u32, [f32; LINK_DIM])], unsupported: u64) {
+    pub fn push_row(
+        &mut self,
+        receiver: u32,
+        links: &[(u32, [f32; LINK_DIM])],
+        unsupported: u64,
+        drop_light: [f64; 6],
+    ) {
         self.row_of[receiver as usize] = self.rows.len() as u32;
         self.rows.push(receiver);
         self.unsupported.push(unsupported);
+        self.drop_light.push(drop_light);
         for (s, v) in links {
             self.senders.push(*s);
             self.values.push(*v);
@@ -163,12 +178,17 @@ struct Processed {
     dropped: [f64; 3],
     /// The same for the kept links.
     kept: [f64; 3],
+    /// The light of the kept and of the dropped links under the representative emission.
+    drop_light: [f64; 6],
 }
 
 /// Computes T adaptively. `neighbors` and `children` are the basis' adjacency
 /// (see `mlt_format::adjacency`); `on_level(l, receivers, links)` reports progress. With
 /// `needed`, only the receivers marked there are processed (a shard: its own receivers and
 /// every coarser one they depend on, which makes their results those of the full run).
+/// `emission` (3 floats per sender) weights each row's kept and dropped links for the
+/// estimate of `drop_estimate`; it does not change T.
+#[allow(clippy::too_many_arguments)]
 pub fn refine(
     ib: &IndexedBasis,
     caster: &dyn RayCaster,
@@ -176,6 +196,7 @@ pub fn refine(
     children: &Csr,
     settings: &RefineSettings,
     needed: Option<&[bool]>,
+    emission: &[f32],
     mut on_level: impl FnMut(usize, usize, usize),
 ) -> (ReceiverLinks, RefineStats) {
     let b = &ib.basis;
@@ -201,6 +222,7 @@ pub fn refine(
                         &t,
                         neighbors,
                         settings,
+                        emission,
                         sender_coarsest,
                         eps_ray,
                         l,
@@ -221,7 +243,7 @@ pub fn refine(
                 stats.dropped_mass[c] += area * p.dropped[c];
                 stats.kept_mass[c] += area * p.kept[c];
             }
-            t.push_row(i, &p.links, p.counts.unsupported);
+            t.push_row(i, &p.links, p.counts.unsupported, p.drop_light);
             if p.refine && l + 1 < b.levels() {
                 next.extend_from_slice(children.row(i as usize));
             }
@@ -266,6 +288,7 @@ fn process(
     t: &ReceiverLinks,
     neighbors: &Csr,
     settings: &RefineSettings,
+    emission: &[f32],
     sender_coarsest: u32,
     eps_ray: f32,
     level: usize,
@@ -304,40 +327,60 @@ fn process(
     let mut links = Vec::new();
     let mut refine = false;
     let mut dropped = [0.0f64; 3];
+    let mut drop_light = [0.0f64; 6];
     let mut lose = |j: u32, v: &[f32; LINK_DIM]| {
+        for (d, a) in drop_light[3..].iter_mut().zip(link_light(v, n, emission, j)) {
+            *d += a;
+        }
         if j < sender_coarsest {
             for (d, a) in dropped.iter_mut().zip(along_normal(v, n)) {
                 *d += a;
             }
         }
     };
+    // Links the rules drop on the upper detail levels: candidates for the budget rule.
+    let upper = level <= UPPER_DETAIL_LEVELS;
+    let mut small: Vec<(u32, f32)> = Vec::new();
     for &j in &touched {
         let v = scratch.get(j);
-        if link_norm(v) <= eps {
+        let norm = link_norm(v);
+        let kept_by_rule = if norm <= eps {
             // The base block of the hierarchy (module docs): kept, without refining.
-            if (level == 0 || !has_parent) && j < sender_coarsest && link_norm(v) > 0.0 {
-                links.push((j, *v));
-            } else {
-                lose(j, v);
-            }
-            continue;
-        }
-        let keep = j < sender_coarsest
-            || neighbors
-                .row(j as usize)
-                .iter()
-                .any(|&k| link_distance(v, scratch.get(k)) > eps)
-            || neighbors.row(j as usize).is_empty();
-        if keep {
+            (level == 0 || !has_parent) && j < sender_coarsest && norm > 0.0
+        } else {
+            let keep = j < sender_coarsest
+                || neighbors
+                    .row(j as usize)
+                    .iter()
+                    .any(|&k| link_distance(v, scratch.get(k)) > eps)
+                || neighbors.row(j as usize).is_empty();
+            refine |= keep;
+            keep
+        };
+        if kept_by_rule {
             links.push((j, *v));
-            refine = true;
+        } else if norm > 0.0 && (level == 0 || (upper && j < sender_coarsest)) {
+            small.push((j, norm));
         } else {
             lose(j, v);
         }
     }
+    let budget_kept = keep_within_budget(&mut small, eps);
+    for &(j, _) in &small[..budget_kept] {
+        links.push((j, *scratch.get(j)));
+    }
+    for &(j, _) in &small[budget_kept..] {
+        lose(j, scratch.get(j));
+    }
+    if budget_kept > 0 {
+        links.sort_unstable_by_key(|l| l.0);
+    }
     scratch.touched = touched;
     let mut kept = [0.0f64; 3];
     for (j, v) in &links {
+        for (d, a) in drop_light[..3].iter_mut().zip(link_light(v, n, emission, *j)) {
+            *d += a;
+        }
         if *j < sender_coarsest {
             for (k, a) in kept.iter_mut().zip(along_normal(v, n)) {
                 *k += a;
@@ -350,5 +393,29 @@ fn process(
         counts,
         dropped,
         kept,
+        drop_light,
     }
+}
+
+/// The budget rule for a finer receiver's links to coarsest senders that are each below
+/// epsilon: they are differences from the coarser receivers' reconstruction (Eq. 17), and a
+/// receiver may have a hundred of them, each too small for Fig. 5's test but together a
+/// large share of its light. Dropping a set of links changes the receiver's irradiance by at
+/// most the sum of their norms times the largest coarsest-sender emission, so the smallest
+/// links are dropped while that sum stays within epsilon and the rest are kept. Sorts
+/// `small` (sender, norm) by descending norm (ties by sender: canonical) and returns how many
+/// leading entries to keep.
+pub fn keep_within_budget(small: &mut [(u32, f32)], eps: f32) -> usize {
+    let total: f64 = small.iter().map(|&(_, n)| n as f64).sum();
+    if total <= eps as f64 {
+        return 0;
+    }
+    small.sort_unstable_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+    let mut dropped = total;
+    let mut keep = 0;
+    while keep < small.len() && dropped > eps as f64 {
+        dropped -= small[keep].1 as f64;
+        keep += 1;
+    }
+    keep
 }

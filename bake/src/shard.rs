@@ -132,6 +132,7 @@ pub fn shard_section(
         s.rays += rays_per_receiver;
         s.unsupported_hits += t.unsupported[row];
         s.rows.push(r);
+        s.row_drop.extend_from_slice(&t.drop_light[row]);
         s.senders.extend_from_slice(&t.senders[a..e]);
         for v in &t.values[a..e] {
             s.values.extend_from_slice(v);
@@ -217,7 +218,9 @@ pub fn merge(shards: Vec<BakeContents>, obs: &dyn Observer) -> Result<BakeConten
             links.push((s.senders[j], v));
         }
         // Per-row unsupported counts are only needed by shards; the totals are in rstats.
-        t.push_row(r, &links, 0);
+        let mut drop_light = [0.0f64; 6];
+        drop_light.copy_from_slice(&s.row_drop[6 * row..6 * row + 6]);
+        t.push_row(r, &links, 0, drop_light);
     }
     let out = finish_transport(
         ib,
