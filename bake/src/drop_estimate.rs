@@ -6,11 +6,11 @@
 //! so an estimate under uniform emission can have the wrong sign for a real light. Here the
 //! links are weighted by the emission the file's own light gives: its direct irradiance at
 //! every sender point (the light model `I max(0, cos) / d^2` inside a spot's cone, one shadow
-//! ray), pull-pushed onto the sender levels as the viewer projects it (section 3.3). Per
-//! processed receiver `i` of level `l` the light `sum_j (n_i . T_ij) e_j` of its kept and of
-//! its dropped links is summed per colour channel and weighted by `R_l^2`, the area its basis
-//! function stands for, so that the sums over all levels approximate integrals of the
-//! hierarchical expansion (finer rows are differences, Eq. 17, and add with their sign).
+//! ray), pull-pushed onto the sender levels as the viewer projects it (section 3.3). The
+//! dropped light is measured where it shows: at each processed receiver's point, the light its
+//! gather found against what the kept hierarchy reconstructs there ([`estimate`]). A dropped
+//! link of a coarse receiver that a finer receiver's difference (Eq. 17) restores costs
+//! nothing there, and a receiver that refinement never processed costs its whole detail.
 
 use glam::Vec3;
 use mlt_format::light::{LightDesc, LightKind};
@@ -21,6 +21,7 @@ use mlt_format::IndexedBasis;
 use mlt_scenes::RayCaster;
 use rayon::prelude::*;
 
+use crate::gather::Scratch;
 use crate::refine::ReceiverLinks;
 
 /// What [`RefinementDrop::emission`] says the sums are weighted by.
@@ -73,25 +74,87 @@ pub fn representative_emission(
     pull_push_levels(ib, &samples, 3, levels).0
 }
 
-/// Per channel, `(n . v_c) e_j[c]` of a link `v` from sender `j` at a receiver of normal `n`.
-#[inline]
-pub fn link_light(v: &[f32; LINK_DIM], n: [f32; 3], e: &[f32], j: u32) -> [f64; 3] {
-    let ej = &e[3 * j as usize..3 * j as usize + 3];
-    std::array::from_fn(|c| {
-        let along = n[0] * v[3 * c] + n[1] * v[3 * c + 1] + n[2] * v[3 * c + 2];
-        along as f64 * ej[c] as f64
-    })
+/// `sum_j T_j e_j` over the senders the gather touched: the vector irradiance under `e`.
+pub fn applied(scratch: &Scratch, e: &[f32]) -> [f32; LINK_DIM] {
+    let mut out = [0.0f32; LINK_DIM];
+    for &j in &scratch.touched {
+        if let Some(es) = e.get(3 * j as usize..3 * j as usize + 3) {
+            let v = scratch.get(j);
+            for k in 0..LINK_DIM {
+                out[k] += v[k] * es[k / 3];
+            }
+        }
+    }
+    out
 }
 
-/// The estimate from T's per-row sums, added in row order (the same in a single bake and in
-/// a merge of shards, which rebuilds the rows in that order).
+/// Per channel, `n . v_c`.
+fn along(v: &[f32], n: [f32; 3]) -> [f64; 3] {
+    std::array::from_fn(|c| (n[0] * v[3 * c] + n[1] * v[3 * c + 1] + n[2] * v[3 * c + 2]) as f64)
+}
+
+/// The estimate from T. Per processed receiver the gather's vector irradiance under the
+/// representative emission (`ReceiverLinks::gathered`, before Eq. 17 and the keep rules) is
+/// projected with Eq. 7 over the processed receivers (a receiver that was not processed has
+/// no coefficient in either expansion), which is what T's coefficients `(T e)_i` would be had
+/// no link been dropped (Eq. 17 with every link kept is Eq. 7 of the gathers). The estimate
+/// weighs each coefficient's difference along the receiver's normal by `R_l^2`, the area its
+/// basis function stands for: a link dropped at a coarse receiver that a finer receiver's
+/// difference restores cancels there. Summed in row order (the same in a single bake and in a
+/// merge of shards, which rebuilds the rows in that order).
 pub fn estimate(ib: &IndexedBasis, t: &ReceiverLinks) -> RefinementDrop {
+    let b = &ib.basis;
+    let e = &t.emission;
+    // T's coefficients under e, and the projection of the gathers, per point (zero where no row).
+    let mut cut = vec![0.0f32; b.len() * LINK_DIM];
+    let mut full = vec![0.0f32; b.len() * LINK_DIM];
+    for (row, &r) in t.rows.iter().enumerate() {
+        let (senders, values) = t.row(r as usize);
+        let c = &mut cut[r as usize * LINK_DIM..(r as usize + 1) * LINK_DIM];
+        for (&s, v) in senders.iter().zip(values) {
+            if let Some(es) = e.get(3 * s as usize..3 * s as usize + 3) {
+                for k in 0..LINK_DIM {
+                    c[k] += v[k] * es[k / 3];
+                }
+            }
+        }
+        full[r as usize * LINK_DIM..(r as usize + 1) * LINK_DIM].copy_from_slice(&t.gathered[row]);
+    }
+    // Eq. 7, level by level, over the processed receivers only.
+    let mut start = 0;
+    for l in 0..b.levels() {
+        let end = start
+            + t.rows[start..]
+                .iter()
+                .take_while(|&&r| b.level_of(r as usize) == l)
+                .count();
+        let coarser: Vec<[f32; LINK_DIM]> = t.rows[start..end]
+            .par_iter()
+            .map(|&r| {
+                let mut v = [0.0f32; LINK_DIM];
+                if l > 0 {
+                    let (x, n) = (b.positions[r as usize], b.normals[r as usize]);
+                    ib.reconstruct(&full, LINK_DIM, 0..l, x, n, &mut v);
+                }
+                v
+            })
+            .collect();
+        for (&r, v) in t.rows[start..end].iter().zip(&coarser) {
+            for k in 0..LINK_DIM {
+                full[r as usize * LINK_DIM + k] -= v[k];
+            }
+        }
+        start = end;
+    }
     let (mut kept, mut dropped) = ([0.0f64; 3], [0.0f64; 3]);
-    for (&r, d) in t.rows.iter().zip(&t.drop_light) {
-        let area = (ib.basis.disk_radii[ib.basis.level_of(r as usize)] as f64).powi(2);
+    for &r in &t.rows {
+        let (r, n) = (r as usize, b.normals[r as usize]);
+        let area = (b.disk_radii[b.level_of(r)] as f64).powi(2);
+        let k = along(&cut[r * LINK_DIM..(r + 1) * LINK_DIM], n);
+        let f = along(&full[r * LINK_DIM..(r + 1) * LINK_DIM], n);
         for c in 0..3 {
-            kept[c] += area * d[c];
-            dropped[c] += area * d[3 + c];
+            kept[c] += area * k[c];
+            dropped[c] += area * (f[c] - k[c]);
         }
     }
     RefinementDrop::new(EMISSION, kept, dropped)
@@ -124,7 +187,10 @@ mod tests {
             ..light
         };
         assert_eq!(irradiance(&spot, Vec3::ZERO, Vec3::Y), [1.0, 2.0, 0.0]);
-        assert_eq!(irradiance(&spot, Vec3::new(4.0, 0.0, 0.0), Vec3::Y), [0.0; 3]);
+        assert_eq!(
+            irradiance(&spot, Vec3::new(4.0, 0.0, 0.0), Vec3::Y),
+            [0.0; 3]
+        );
     }
 
     #[test]

@@ -10,8 +10,13 @@
 //!
 //! truncated below epsilon, except the links from coarsest senders to coarsest receivers, which
 //! are always kept (nothing coarser represents them; see `refine`). The paper computes bounces
-//! 2 and later on the coarsest receivers only ([`BounceReceivers::Coarsest`]): `S` adds every
-//! `X_b` to T's level-0 rows. Vector irradiance turns with the surface normal, so on curved
+//! 2 and later on the coarsest receivers only; [`BounceReceivers::Coarsest`] computes them on
+//! the coarsest receivers and the receivers of levels `1..=UPPER_DETAIL_LEVELS`, whose rows of
+//! T are Eq. 17 differences, so that their products are the finer coefficients of bounce `b`
+//! (the coarsest level alone misses the higher bounces' detail where the level-0 points are
+//! not representative, e.g. in the open while enclosed places gather the bounces). Their links to coarsest senders below epsilon are kept by the budget rule
+//! (`refine::keep_within_budget`); their other links are truncated at epsilon. `S` adds every
+//! `X_b` to T's rows. Vector irradiance turns with the surface normal, so on curved
 //! geometry the coarsest level alone reconstructs these bounces poorly (about 10 % low on a
 //! closed sphere of 24 level-0 points); [`BounceReceivers::All`] applies every refined row of T
 //! instead (`X_b = T Y_{b-1}`: finer rows of T are Eq. 17 differences, so their products are
@@ -36,7 +41,7 @@ pub type Rows = Vec<Row>;
 /// Which receivers bounces 2 and later are computed on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum BounceReceivers {
-    /// The coarsest level only (the paper).
+    /// The coarsest level (the paper) and the upper detail levels (module docs).
     Coarsest,
     /// Every receiver T was refined on.
     All,

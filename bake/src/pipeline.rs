@@ -3,11 +3,11 @@
 use std::time::Instant;
 
 use glam::Vec3;
+use mlt_format::light::LightDesc;
 use mlt_format::meta::{
     BasisParams, BasisStats, CameraInfo, LightInfo, Meta, SceneInfo, Timings, TransportParams,
     TransportTimings,
 };
-use mlt_format::light::LightDesc;
 use mlt_format::shard::ShardSection;
 use mlt_format::shepard::MIN_WEIGHT_SUM;
 use mlt_format::{BakeContents, IndexedBasis, Transport};

@@ -24,9 +24,22 @@
 //! its links are full values (Eq. 17 subtracts nothing), so it gets the same rule, and it is
 //! queued even though no coarser receiver has it as a child.
 //!
+//! A second departure: **the budget rule on the upper receiver levels.** Fig. 5 tests each
+//! link on its own, but a receiver sees hundreds of senders whose links are each far below
+//! epsilon (a link is about `rho / (senders of its level seen)`) and together carry much of
+//! its light: the detail coefficients of the emission (finer senders, which carry the sharp
+//! direct light) at coarse receivers, and the Eq. 17 differences to coarsest senders at
+//! level-1 receivers (which also carry the higher bounces, see `neumann`). So on level 0
+//! (links to any sender) and on levels `1..=UPPER_DETAIL_LEVELS` (links to coarsest senders)
+//! the links the rules drop are candidates for [`keep_within_budget`]: the smallest
+//! are dropped while the sum of their norms stays within epsilon, the others are kept. The
+//! receiver's irradiance then changes by at most epsilon times the largest sender
+//! coefficient. Budget links do not queue children. Finer levels keep Fig. 5 alone (their
+//! differences carry gather noise whose norms add up without adding light).
+//!
 //! Refinement also sums, under uniform emission at the coarsest senders, the single-bounce light
-//! of the links it drops against that of the links it keeps ([`RefineStats::dropped_share`]):
-//! the bake's estimate of what the truncation of T at epsilon changes.
+//! of the links it drops against that of the links it keeps ([`RefineStats::dropped_share`]),
+//! and per row the same under the file's light (`drop_estimate`, stored in the file).
 //!
 //! When any link of a receiver passed the test, its children are queued for the next level. The
 //! receivers of a level are processed in parallel; each one's result depends only on its index,
@@ -39,7 +52,7 @@ use mlt_format::IndexedBasis;
 use mlt_scenes::RayCaster;
 use rayon::prelude::*;
 
-use crate::drop_estimate::link_light;
+use crate::drop_estimate::applied;
 use crate::gather::{gather, link_distance, link_norm, GatherCounts, Scratch};
 
 /// Receiver levels `1..=UPPER_DETAIL_LEVELS` keep their links to coarsest senders by the
@@ -59,9 +72,12 @@ pub struct ReceiverLinks {
     pub values: Vec<[f32; LINK_DIM]>,
     /// Per row: gather hits where a sender level had no support.
     pub unsupported: Vec<u64>,
-    /// Per row: the light of its kept links and of its dropped links under the
-    /// representative emission, RGB each (see `drop_estimate`).
-    pub drop_light: Vec<[f64; 6]>,
+    /// Per row: the single-bounce vector irradiance that its gather found under the
+    /// representative emission, before Eq. 17 and the keep rules (the reference of
+    /// `drop_estimate`).
+    pub gathered: Vec<[f32; LINK_DIM]>,
+    /// The representative emission the rows were weighted by (3 floats per sender).
+    pub emission: Vec<f32>,
 }
 
 pub const NONE: u32 = u32::MAX;
@@ -95,12 +111,12 @@ impl ReceiverLinks {
         receiver: u32,
         links: &[(u32, [f32; LINK_DIM])],
         unsupported: u64,
-        drop_light: [f64; 6],
+        gathered: [f32; LINK_DIM],
     ) {
         self.row_of[receiver as usize] = self.rows.len() as u32;
         self.rows.push(receiver);
         self.unsupported.push(unsupported);
-        self.drop_light.push(drop_light);
+        self.gathered.push(gathered);
         for (s, v) in links {
             self.senders.push(*s);
             self.values.push(*v);
@@ -178,8 +194,8 @@ struct Processed {
     dropped: [f64; 3],
     /// The same for the kept links.
     kept: [f64; 3],
-    /// The light of the kept and of the dropped links under the representative emission.
-    drop_light: [f64; 6],
+    /// The gathered single-bounce vector irradiance under the representative emission.
+    gathered: [f32; LINK_DIM],
 }
 
 /// Computes T adaptively. `neighbors` and `children` are the basis' adjacency
@@ -204,6 +220,7 @@ pub fn refine(
     let sender_coarsest = b.level_offsets[1];
     let eps_ray = caster.ray_epsilon();
     let mut t = ReceiverLinks::new(b.len());
+    t.emission = emission.to_vec();
     let mut stats = RefineStats::default();
     let mut queue: Vec<u32> = b.level_range(0).map(|i| i as u32).collect();
     let unreachable = unreachable_points(ib);
@@ -243,7 +260,7 @@ pub fn refine(
                 stats.dropped_mass[c] += area * p.dropped[c];
                 stats.kept_mass[c] += area * p.kept[c];
             }
-            t.push_row(i, &p.links, p.counts.unsupported, p.drop_light);
+            t.push_row(i, &p.links, p.counts.unsupported, p.gathered);
             if p.refine && l + 1 < b.levels() {
                 next.extend_from_slice(children.row(i as usize));
             }
@@ -306,9 +323,10 @@ fn process(
         eps_ray,
         scratch,
     );
+    let (x, n) = (ib.basis.positions[i], ib.basis.normals[i]);
+    let gathered = applied(scratch, emission);
     // Eq. 17: subtract what the coarser receiver levels already represent at p_i, using the
     // links they kept (discarded links are zero in the representation).
-    let (x, n) = (ib.basis.positions[i], ib.basis.normals[i]);
     // Whether any coarser level represents something here: if none does, this receiver's
     // links are full values, not differences, and it is a base of the hierarchy like level 0.
     let mut has_parent = false;
@@ -327,11 +345,7 @@ fn process(
     let mut links = Vec::new();
     let mut refine = false;
     let mut dropped = [0.0f64; 3];
-    let mut drop_light = [0.0f64; 6];
     let mut lose = |j: u32, v: &[f32; LINK_DIM]| {
-        for (d, a) in drop_light[3..].iter_mut().zip(link_light(v, n, emission, j)) {
-            *d += a;
-        }
         if j < sender_coarsest {
             for (d, a) in dropped.iter_mut().zip(along_normal(v, n)) {
                 *d += a;
@@ -378,9 +392,6 @@ fn process(
     scratch.touched = touched;
     let mut kept = [0.0f64; 3];
     for (j, v) in &links {
-        for (d, a) in drop_light[..3].iter_mut().zip(link_light(v, n, emission, *j)) {
-            *d += a;
-        }
         if *j < sender_coarsest {
             for (k, a) in kept.iter_mut().zip(along_normal(v, n)) {
                 *k += a;
@@ -393,7 +404,7 @@ fn process(
         counts,
         dropped,
         kept,
-        drop_light,
+        gathered,
     }
 }
 

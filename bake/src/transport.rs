@@ -4,8 +4,8 @@
 use std::time::Instant;
 
 use mlt_format::adjacency::{children, neighbors};
-use mlt_format::links::{Links, SenderLinks, LINK_DIM};
 use mlt_format::light::LightDesc;
+use mlt_format::links::{Links, SenderLinks, LINK_DIM};
 use mlt_format::meta::{
     ErrorEstimate, LeftOut, RefinementDrop, TransportMeta, TransportParams, TransportReport,
     TransportStats, TransportTimings,
@@ -244,14 +244,23 @@ pub fn refine_t(
         seed: params.seed,
     };
     let levels = ib.levels();
-    let (t, rstats) = refine(ib, caster, &nb, &ch, &settings, needed, &emission, |l, n, kept| {
-        obs.progress(l as u64 + 1, levels as u64);
-        obs.done(
-            &format!("receiver level {l}"),
-            t0.elapsed().as_secs_f64(),
-            &format!("{n} receivers refined, {kept} links kept"),
-        );
-    });
+    let (t, rstats) = refine(
+        ib,
+        caster,
+        &nb,
+        &ch,
+        &settings,
+        needed,
+        &emission,
+        |l, n, kept| {
+            obs.progress(l as u64 + 1, levels as u64);
+            obs.done(
+                &format!("receiver level {l}"),
+                t0.elapsed().as_secs_f64(),
+                &format!("{n} receivers refined, {kept} links kept"),
+            );
+        },
+    );
     let refine_s = t0.elapsed().as_secs_f64();
     obs.done(
         "refinement of T",

@@ -304,15 +304,17 @@ data! {
     /// shard files): the bake's estimate of the single-bounce light that the refinement of T
     /// (Fig. 5 and its budget rule) dropped, under a representative emission: the file's own
     /// light, its direct irradiance sampled at the sender points (one shadow ray each) and
-    /// pull-pushed onto the sender levels as the viewer does. Per processed receiver `i` of
-    /// level `l`, `sum_j (n_i . T_ij) e_j` over its kept and over its dropped links, per
-    /// colour channel, times `R_l^2` (the area its basis function stands for), summed over
-    /// the receivers in index order. A new section rather than new fields of `TRPT`, whose
-    /// layout is fixed within the major version.
+    /// pull-pushed onto the sender levels as the viewer does. At every processed receiver `i`
+    /// of level `l`, the irradiance along its normal that its gather found against what the
+    /// kept links reconstruct there (Eq. 6 over all levels), per colour channel, times
+    /// `R_l^2` (the area its basis function stands for), summed over the receivers in index
+    /// order. A new section rather than new fields of `TRPT`, whose layout is fixed within the
+    /// major version.
     pub struct RefinementDrop {
         /// The emission the sums weight the links by (`file light`).
         pub emission: String,
-        /// Per colour channel, the light of the kept and of the dropped links.
+        /// Per colour channel, the light the kept links reconstruct, and the light the gathers
+        /// found minus that (what was dropped).
         pub kept: [f64; 3],
         pub dropped: [f64; 3],
         /// `dropped / (kept + dropped)` in the colour channel where it is largest in

@@ -29,10 +29,11 @@ pub struct ShardSection {
     pub t_links_per_level: Vec<u64>,
     pub rays: u64,
     pub unsupported_hits: u64,
-    /// Per row (format 1.5 and later), the light of its kept and of its dropped links under
-    /// the representative emission, area-weighted: 6 floats, kept RGB then dropped RGB (see
-    /// [`crate::meta::RefinementDrop`]).
-    pub row_drop: Vec<f64>,
+    /// Per row (format 1.5 and later), the single-bounce vector irradiance its gather found
+    /// under the representative emission (`LINK_DIM` floats per row), and that emission (3
+    /// floats per sender): what the merge needs for [`crate::meta::RefinementDrop`].
+    pub row_gathered: Vec<f32>,
+    pub emission: Vec<f32>,
 }
 
 impl ShardSection {
@@ -50,7 +51,8 @@ impl ShardSection {
             || self.offsets.windows(2).any(|w| w[0] > w[1])
             || self.offsets.last().map(|&o| o as usize) != Some(self.senders.len())
             || self.values.len() != self.senders.len() * LINK_DIM
-            || self.row_drop.len() != self.rows.len() * 6
+            || self.row_gathered.len() != self.rows.len() * LINK_DIM
+            || self.emission.len() % 3 != 0
         {
             return Err("row arrays are inconsistent".into());
         }
