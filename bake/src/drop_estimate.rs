@@ -32,7 +32,7 @@ pub const EMISSION: &str = "file light";
 fn irradiance(light: &LightDesc, x: Vec3, n: Vec3) -> [f32; 3] {
     let d = Vec3::from(light.position) - x;
     let d2 = d.length_squared();
-    if !(d2 > 0.0) {
+    if d2.is_nan() || d2 <= 0.0 {
         return [0.0; 3];
     }
     let l = d / d2.sqrt();

@@ -52,7 +52,7 @@ impl ShardSection {
             || self.offsets.last().map(|&o| o as usize) != Some(self.senders.len())
             || self.values.len() != self.senders.len() * LINK_DIM
             || self.row_gathered.len() != self.rows.len() * LINK_DIM
-            || self.emission.len() % 3 != 0
+            || !self.emission.len().is_multiple_of(3)
         {
             return Err("row arrays are inconsistent".into());
         }
