@@ -13,6 +13,7 @@
 pub mod batch;
 pub mod candidates;
 pub mod coverage;
+pub mod drop_estimate;
 pub mod error;
 pub mod gather;
 pub mod grid;

@@ -4,6 +4,7 @@ use std::time::Instant;
 
 use glam::Vec3;
 use mlt_format::flat_section::{linked_flags, FlatSection};
+use mlt_format::light::LightDesc;
 use mlt_format::meta::{
     BasisParams, BasisStats, CameraInfo, LevelStats, LightInfo, Meta, SceneInfo, Timings,
     TransportParams, TransportTimings,
@@ -160,6 +161,7 @@ pub fn bake_scene(
     let stage = transport_stage(
         basis.ib,
         caster.as_ref(),
+        &scene.light,
         &opts,
         transport_params,
         policy,
@@ -248,10 +250,13 @@ struct TransportStage {
 }
 
 /// The transport (section 3): none for a basis-only bake, T's rows of one shard for a shard
-/// bake (whose file key mixes in the shard), else S.
+/// bake (whose file key mixes in the shard), else S. `light` is the representative emission
+/// of the estimate of what refinement drops (`drop_estimate`).
+#[allow(clippy::too_many_arguments)]
 fn transport_stage(
     mut ib: IndexedBasis,
     caster: &dyn RayCaster,
+    light: &LightDesc,
     opts: &BakeOptions,
     transport_params: TransportParams,
     policy: BouncePolicy,
@@ -266,7 +271,7 @@ fn transport_stage(
     if let (false, Some((index, count))) = (opts.basis_only, opts.shard) {
         let owner = owners(&ib, count);
         let need = needed(&ib, &owner, index);
-        let (t, _, _) = refine_t(&ib, caster, &transport_params, Some(&need), obs);
+        let (t, _, _) = refine_t(&ib, caster, &transport_params, light, Some(&need), obs);
         shard = Some(shard_section(
             &ib,
             &t,
@@ -278,7 +283,7 @@ fn transport_stage(
         ));
         file_key = mix64(key ^ mix64(((index as u64) << 32) | count as u64));
     } else if !opts.basis_only {
-        let out = compute_transport(&ib, caster, transport_params, policy, obs)?;
+        let out = compute_transport(&ib, caster, transport_params, policy, light, obs)?;
         warnings = out.warnings;
         if out.levels_stored < ib.levels() {
             let placed = ib.levels();

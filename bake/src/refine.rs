@@ -24,9 +24,22 @@
 //! its links are full values (Eq. 17 subtracts nothing), so it gets the same rule, and it is
 //! queued even though no coarser receiver has it as a child.
 //!
+//! A second departure: **the budget rule on the upper receiver levels.** Fig. 5 tests each
+//! link on its own, but a receiver sees hundreds of senders whose links are each far below
+//! epsilon (a link is about `rho / (senders of its level seen)`) and together carry much of
+//! its light: the detail coefficients of the emission (finer senders, which carry the sharp
+//! direct light) at coarse receivers, and the Eq. 17 differences to coarsest senders at
+//! level-1 receivers (which also carry the higher bounces, see `neumann`). So on level 0
+//! (links to any sender) and on levels `1..=UPPER_DETAIL_LEVELS` (links to coarsest senders)
+//! the links the rules drop are candidates for [`keep_within_budget`]: the smallest
+//! are dropped while the sum of their norms stays within epsilon, the others are kept. The
+//! receiver's irradiance then changes by at most epsilon times the largest sender
+//! coefficient. Budget links do not queue children. Finer levels keep Fig. 5 alone (their
+//! differences carry gather noise whose norms add up without adding light).
+//!
 //! Refinement also sums, under uniform emission at the coarsest senders, the single-bounce light
-//! of the links it drops against that of the links it keeps ([`RefineStats::dropped_share`]):
-//! the bake's estimate of what the truncation of T at epsilon changes.
+//! of the links it drops against that of the links it keeps ([`RefineStats::dropped_share`]),
+//! and per row the same under the file's light (`drop_estimate`, stored in the file).
 //!
 //! When any link of a receiver passed the test, its children are queued for the next level. The
 //! receivers of a level are processed in parallel; each one's result depends only on its index,
@@ -39,8 +52,13 @@ use mlt_format::IndexedBasis;
 use mlt_scenes::RayCaster;
 use rayon::prelude::*;
 
+use crate::drop_estimate::applied;
 use crate::gather::{gather, link_distance, link_norm, GatherCounts, Scratch};
 use crate::sender_cells::SenderCells;
+
+/// Receiver levels `1..=UPPER_DETAIL_LEVELS` keep their links to coarsest senders by the
+/// budget rule ([`keep_within_budget`]) and carry bounces 2 and later (see `neumann`).
+pub const UPPER_DETAIL_LEVELS: usize = 1;
 
 /// Receiver-major links of T: one row per processed receiver.
 #[derive(Clone, Debug, Default)]
@@ -55,6 +73,12 @@ pub struct ReceiverLinks {
     pub values: Vec<[f32; LINK_DIM]>,
     /// Per row: gather hits where a sender level had no support.
     pub unsupported: Vec<u64>,
+    /// Per row: the single-bounce vector irradiance that its gather found under the
+    /// representative emission, before Eq. 17 and the keep rules (the reference of
+    /// `drop_estimate`).
+    pub gathered: Vec<[f32; LINK_DIM]>,
+    /// The representative emission the rows were weighted by (3 floats per sender).
+    pub emission: Vec<f32>,
 }
 
 pub const NONE: u32 = u32::MAX;
@@ -83,10 +107,17 @@ impl ReceiverLinks {
     }
 
     /// Appends the row of `receiver`.
-    pub fn push_row(&mut self, receiver: u32, links: &[(u32, [f32; LINK_DIM])], unsupported: u64) {
+    pub fn push_row(
+        &mut self,
+        receiver: u32,
+        links: &[(u32, [f32; LINK_DIM])],
+        unsupported: u64,
+        gathered: [f32; LINK_DIM],
+    ) {
         self.row_of[receiver as usize] = self.rows.len() as u32;
         self.rows.push(receiver);
         self.unsupported.push(unsupported);
+        self.gathered.push(gathered);
         for (s, v) in links {
             self.senders.push(*s);
             self.values.push(*v);
@@ -164,12 +195,17 @@ struct Processed {
     dropped: [f64; 3],
     /// The same for the kept links.
     kept: [f64; 3],
+    /// The gathered single-bounce vector irradiance under the representative emission.
+    gathered: [f32; LINK_DIM],
 }
 
 /// Computes T adaptively. `neighbors` and `children` are the basis' adjacency
 /// (see `mlt_format::adjacency`); `on_level(l, receivers, links)` reports progress. With
 /// `needed`, only the receivers marked there are processed (a shard: its own receivers and
 /// every coarser one they depend on, which makes their results those of the full run).
+/// `emission` (3 floats per sender) weights each row's kept and dropped links for the
+/// estimate of `drop_estimate`; it does not change T.
+#[allow(clippy::too_many_arguments)]
 pub fn refine(
     ib: &IndexedBasis,
     caster: &dyn RayCaster,
@@ -177,6 +213,7 @@ pub fn refine(
     children: &Csr,
     settings: &RefineSettings,
     needed: Option<&[bool]>,
+    emission: &[f32],
     mut on_level: impl FnMut(usize, usize, usize),
 ) -> (ReceiverLinks, RefineStats) {
     let b = &ib.basis;
@@ -184,6 +221,7 @@ pub fn refine(
     let sender_coarsest = b.level_offsets[1];
     let eps_ray = caster.ray_epsilon();
     let mut t = ReceiverLinks::new(b.len());
+    t.emission = emission.to_vec();
     let mut stats = RefineStats::default();
     let mut queue: Vec<u32> = b.level_range(0).map(|i| i as u32).collect();
     let unreachable = unreachable_points(ib);
@@ -204,6 +242,7 @@ pub fn refine(
                         &t,
                         neighbors,
                         settings,
+                        emission,
                         sender_coarsest,
                         eps_ray,
                         l,
@@ -224,7 +263,7 @@ pub fn refine(
                 stats.dropped_mass[c] += area * p.dropped[c];
                 stats.kept_mass[c] += area * p.kept[c];
             }
-            t.push_row(i, &p.links, p.counts.unsupported);
+            t.push_row(i, &p.links, p.counts.unsupported, p.gathered);
             if p.refine && l + 1 < b.levels() {
                 next.extend_from_slice(children.row(i as usize));
             }
@@ -270,6 +309,7 @@ fn process(
     t: &ReceiverLinks,
     neighbors: &Csr,
     settings: &RefineSettings,
+    emission: &[f32],
     sender_coarsest: u32,
     eps_ray: f32,
     level: usize,
@@ -288,9 +328,10 @@ fn process(
         eps_ray,
         scratch,
     );
+    let (x, n) = (ib.basis.positions[i], ib.basis.normals[i]);
+    let gathered = applied(scratch, emission);
     // Eq. 17: subtract what the coarser receiver levels already represent at p_i, using the
     // links they kept (discarded links are zero in the representation).
-    let (x, n) = (ib.basis.positions[i], ib.basis.normals[i]);
     // Whether any coarser level represents something here: if none does, this receiver's
     // links are full values, not differences, and it is a base of the hierarchy like level 0.
     let mut has_parent = false;
@@ -316,29 +357,42 @@ fn process(
             }
         }
     };
+    // Links the rules drop on the upper detail levels: candidates for the budget rule.
+    let upper = level <= UPPER_DETAIL_LEVELS;
+    let mut small: Vec<(u32, f32)> = Vec::new();
     for &j in &touched {
         let v = scratch.get(j);
-        if link_norm(v) <= eps {
+        let norm = link_norm(v);
+        let kept_by_rule = if norm <= eps {
             // The base block of the hierarchy (module docs): kept, without refining.
-            if (level == 0 || !has_parent) && j < sender_coarsest && link_norm(v) > 0.0 {
-                links.push((j, *v));
-            } else {
-                lose(j, v);
-            }
-            continue;
-        }
-        let keep = j < sender_coarsest
-            || neighbors
-                .row(j as usize)
-                .iter()
-                .any(|&k| link_distance(v, scratch.get(k)) > eps)
-            || neighbors.row(j as usize).is_empty();
-        if keep {
+            (level == 0 || !has_parent) && j < sender_coarsest && norm > 0.0
+        } else {
+            let keep = j < sender_coarsest
+                || neighbors
+                    .row(j as usize)
+                    .iter()
+                    .any(|&k| link_distance(v, scratch.get(k)) > eps)
+                || neighbors.row(j as usize).is_empty();
+            refine |= keep;
+            keep
+        };
+        if kept_by_rule {
             links.push((j, *v));
-            refine = true;
+        } else if norm > 0.0 && (level == 0 || (upper && j < sender_coarsest)) {
+            small.push((j, norm));
         } else {
             lose(j, v);
         }
+    }
+    let budget_kept = keep_within_budget(&mut small, eps);
+    for &(j, _) in &small[..budget_kept] {
+        links.push((j, *scratch.get(j)));
+    }
+    for &(j, _) in &small[budget_kept..] {
+        lose(j, scratch.get(j));
+    }
+    if budget_kept > 0 {
+        links.sort_unstable_by_key(|l| l.0);
     }
     scratch.touched = touched;
     let mut kept = [0.0f64; 3];
@@ -355,5 +409,29 @@ fn process(
         counts,
         dropped,
         kept,
+        gathered,
     }
+}
+
+/// The budget rule for a finer receiver's links to coarsest senders that are each below
+/// epsilon: they are differences from the coarser receivers' reconstruction (Eq. 17), and a
+/// receiver may have a hundred of them, each too small for Fig. 5's test but together a
+/// large share of its light. Dropping a set of links changes the receiver's irradiance by at
+/// most the sum of their norms times the largest coarsest-sender emission, so the smallest
+/// links are dropped while that sum stays within epsilon and the rest are kept. Sorts
+/// `small` (sender, norm) by descending norm (ties by sender: canonical) and returns how many
+/// leading entries to keep.
+pub fn keep_within_budget(small: &mut [(u32, f32)], eps: f32) -> usize {
+    let total: f64 = small.iter().map(|&(_, n)| n as f64).sum();
+    if total <= eps as f64 {
+        return 0;
+    }
+    small.sort_unstable_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+    let mut dropped = total;
+    let mut keep = 0;
+    while keep < small.len() && dropped > eps as f64 {
+        dropped -= small[keep].1 as f64;
+        keep += 1;
+    }
+    keep
 }

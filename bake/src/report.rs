@@ -3,7 +3,9 @@
 use std::fmt::Write;
 
 use mlt_format::file::FileInfo;
-use mlt_format::meta::{Meta, Timings, TransportMeta, TransportReport, TransportTimings};
+use mlt_format::meta::{
+    Meta, RefinementDrop, Timings, TransportMeta, TransportReport, TransportTimings,
+};
 
 fn hms(s: f64) -> String {
     if s >= 60.0 {
@@ -183,6 +185,16 @@ pub fn transport_table(t: &TransportMeta, timings: Option<&TransportTimings>) ->
     o
 }
 
+fn signed_pct(x: f64) -> String {
+    if x > 0.0 {
+        format!("+{}", pct(x))
+    } else if x < 0.0 {
+        format!("-{}", pct(-x))
+    } else {
+        pct(x)
+    }
+}
+
 fn pct(x: f64) -> String {
     if x == 0.0 {
         "0 %".into()
@@ -193,9 +205,16 @@ fn pct(x: f64) -> String {
     }
 }
 
+/// The error estimate's total with the light refinement dropped from T (`TDRP`, when the file
+/// has it): the magnitude of [`RefinementDrop::share`] adds to the `TRPT` total.
+pub fn total_with_drop(r: &TransportReport, drop: Option<&RefinementDrop>) -> f64 {
+    r.error.total + drop.map_or(0.0, |d| d.share.abs())
+}
+
 /// The end of the bake's report: the bounce count chosen, the error it estimates it committed
-/// to, and what the file leaves out (the `TRPT` section).
-pub fn estimate_table(r: &TransportReport) -> String {
+/// to (with what refinement dropped from T, `TDRP`, when the file has it), and what the file
+/// leaves out (the `TRPT` section).
+pub fn estimate_table(r: &TransportReport, drop: Option<&RefinementDrop>) -> String {
     let e = &r.error;
     let l = &r.left_out;
     let mut o = String::new();
@@ -216,14 +235,31 @@ pub fn estimate_table(r: &TransportReport) -> String {
             "NOT converged"
         }
     );
-    let _ = writeln!(
-        o,
-        "error est.    {} of the indirect light = series tail {} + bounce truncation {} + f16 storage {} (uniform-emission estimate; T's links dropped at epsilon and the basis' reconstruction error are not in it)",
-        pct(e.total),
-        pct(e.series_tail),
-        pct(e.bounce_truncation),
-        pct(e.quantisation)
-    );
+    match drop {
+        Some(d) => {
+            let _ = writeln!(
+                o,
+                "error est.    {} of the indirect light = series tail {} + bounce truncation {} + f16 storage {} (uniform emission) + links of T dropped {} (signed, under the {}: the image is that much too {}); the basis' reconstruction error is not in it",
+                pct(total_with_drop(r, Some(d))),
+                pct(e.series_tail),
+                pct(e.bounce_truncation),
+                pct(e.quantisation),
+                signed_pct(d.share),
+                d.emission,
+                if d.share >= 0.0 { "dark" } else { "bright" }
+            );
+        }
+        None => {
+            let _ = writeln!(
+                o,
+                "error est.    {} of the indirect light = series tail {} + bounce truncation {} + f16 storage {} (uniform-emission estimate; T's links dropped at epsilon and the basis' reconstruction error are not in it)",
+                pct(e.total),
+                pct(e.series_tail),
+                pct(e.bounce_truncation),
+                pct(e.quantisation)
+            );
+        }
+    }
     let linked: Vec<String> = l
         .receivers_linked_per_level
         .iter()
@@ -325,7 +361,7 @@ pub fn info_text(info: &FileInfo) -> String {
         None => o.push_str("transport     none (basis only)\n"),
     }
     if let Some(r) = &info.report {
-        o.push_str(&estimate_table(r));
+        o.push_str(&estimate_table(r, info.refinement_drop.as_ref()));
     }
     o
 }

@@ -113,6 +113,7 @@ pub fn shard_section(
         auto_bounces: policy.auto,
         bounce_tolerance: policy.tolerance,
         offsets: vec![0],
+        emission: t.emission.clone(),
         receivers_refined: vec![0; levels],
         t_links_per_level: vec![0; levels],
         ..Default::default()
@@ -133,6 +134,7 @@ pub fn shard_section(
         s.rays += rays_per_receiver;
         s.unsupported_hits += t.unsupported[row];
         s.rows.push(r);
+        s.row_gathered.extend_from_slice(&t.gathered[row]);
         s.senders.extend_from_slice(&t.senders[a..e]);
         for v in &t.values[a..e] {
             s.values.extend_from_slice(v);
@@ -207,6 +209,7 @@ pub fn merge(shards: Vec<BakeContents>, obs: &dyn Observer) -> Result<BakeConten
         return bad("two shards hold the same receiver".into());
     }
     let mut t = ReceiverLinks::new(ib.basis.len());
+    t.emission = s0.emission.clone();
     let mut links = Vec::new();
     for (r, k, row) in rows {
         let Some(s) = &shards[k].shard else { continue };
@@ -218,7 +221,9 @@ pub fn merge(shards: Vec<BakeContents>, obs: &dyn Observer) -> Result<BakeConten
             links.push((s.senders[j], v));
         }
         // Per-row unsupported counts are only needed by shards; the totals are in rstats.
-        t.push_row(r, &links, 0);
+        let mut gathered = [0.0f32; LINK_DIM];
+        gathered.copy_from_slice(&s.row_gathered[LINK_DIM * row..LINK_DIM * (row + 1)]);
+        t.push_row(r, &links, 0, gathered);
     }
     let out = finish_transport(
         ib,

@@ -4,14 +4,16 @@
 use std::time::Instant;
 
 use mlt_format::adjacency::{children, neighbors};
+use mlt_format::light::LightDesc;
 use mlt_format::links::{Links, SenderLinks, LINK_DIM};
 use mlt_format::meta::{
-    ErrorEstimate, LeftOut, TransportMeta, TransportParams, TransportReport, TransportStats,
-    TransportTimings,
+    ErrorEstimate, LeftOut, RefinementDrop, TransportMeta, TransportParams, TransportReport,
+    TransportStats, TransportTimings,
 };
 use mlt_format::{IndexedBasis, Transport};
 use mlt_scenes::RayCaster;
 
+use crate::drop_estimate::{estimate, representative_emission};
 use crate::error::BakeError;
 use crate::neumann::{series, spectral_radius, BounceReceivers, Row, Rows, SeriesReport};
 use crate::observer::Observer;
@@ -188,34 +190,34 @@ pub fn peak_rss_bytes() -> u64 {
 }
 
 /// Computes S for `ib` (in the current rayon pool; the result does not depend on its size).
+/// `light` gives the representative emission of the estimate of what refinement drops
+/// (`drop_estimate`); it does not change S.
 pub fn compute_transport(
     ib: &IndexedBasis,
     caster: &dyn RayCaster,
     params: TransportParams,
     policy: BouncePolicy,
+    light: &LightDesc,
     obs: &dyn Observer,
 ) -> Result<TransportOutput, BakeError> {
     check_params(&params, ib.levels() as u32)?;
-    let (t, rstats, refine_s) = refine_t(ib, caster, &params, None, obs);
+    let (t, rstats, refine_s) = refine_t(ib, caster, &params, light, None, obs);
     let dropped = rstats.dropped_share();
-    let epsilon = params.epsilon;
     let mut out = finish_transport(ib, t, rstats, params, policy, refine_s, obs)?;
     out.refinement_drop = Some(dropped);
-    if let Some(w) = refinement_warning(dropped, epsilon, policy.tolerance) {
-        obs.warn(&w);
-        out.warnings.push(w);
-    }
     Ok(out)
 }
 
 /// The warning when the links of T dropped at epsilon carry more than `tolerance` of the
-/// single-bounce light ([`RefineStats::dropped_share`], either sign).
-pub fn refinement_warning(dropped: f64, epsilon: f32, tolerance: f64) -> Option<String> {
-    (dropped.abs() > tolerance).then(|| {
+/// single-bounce light under the file's light ([`RefinementDrop::share`], either sign).
+pub fn refinement_warning(drop: &RefinementDrop, epsilon: f32, tolerance: f64) -> Option<String> {
+    let d = drop.share;
+    (d.abs() > tolerance).then(|| {
         format!(
-            "links of T dropped at epsilon {epsilon} would have {} about {:.1} % of the single-bounce light (uniform-emission estimate; not in the file's error estimate); a smaller --epsilon keeps them",
-            if dropped > 0.0 { "added" } else { "taken away" },
-            100.0 * dropped.abs()
+            "links of T dropped at epsilon {epsilon} would have {} about {:.1} % of the single-bounce light under the file's light (the image is that much too {}); a smaller --epsilon keeps them",
+            if d > 0.0 { "added" } else { "taken away" },
+            100.0 * d.abs(),
+            if d > 0.0 { "dark" } else { "bright" }
         )
     })
 }
@@ -226,11 +228,13 @@ pub fn refine_t(
     ib: &IndexedBasis,
     caster: &dyn RayCaster,
     params: &TransportParams,
+    light: &LightDesc,
     needed: Option<&[bool]>,
     obs: &dyn Observer,
 ) -> (ReceiverLinks, RefineStats, f64) {
     obs.stage("refinement of T");
     let t0 = Instant::now();
+    let emission = representative_emission(ib, caster, light, params.sender_levels as usize);
     let nb = neighbors(ib);
     let ch = children(ib);
     let settings = RefineSettings {
@@ -240,22 +244,32 @@ pub fn refine_t(
         seed: params.seed,
     };
     let levels = ib.levels();
-    let (t, rstats) = refine(ib, caster, &nb, &ch, &settings, needed, |l, n, kept| {
-        obs.progress(l as u64 + 1, levels as u64);
-        obs.done(
-            &format!("receiver level {l}"),
-            t0.elapsed().as_secs_f64(),
-            &format!("{n} receivers refined, {kept} links kept"),
-        );
-    });
+    let (t, rstats) = refine(
+        ib,
+        caster,
+        &nb,
+        &ch,
+        &settings,
+        needed,
+        &emission,
+        |l, n, kept| {
+            obs.progress(l as u64 + 1, levels as u64);
+            obs.done(
+                &format!("receiver level {l}"),
+                t0.elapsed().as_secs_f64(),
+                &format!("{n} receivers refined, {kept} links kept"),
+            );
+        },
+    );
     let refine_s = t0.elapsed().as_secs_f64();
     obs.done(
         "refinement of T",
         refine_s,
         &format!(
-            "{} links, {} rays; links dropped at epsilon: {:.2} % of the single-bounce light (uniform-emission estimate)",
+            "{} links, {} rays; links dropped at epsilon: {:+.2} % of the single-bounce light under the file's light ({:+.2} % under uniform emission)",
             t.link_count(),
             rstats.rays,
+            100.0 * estimate(ib, &t).share,
             100.0 * rstats.dropped_share()
         ),
     );
@@ -277,6 +291,7 @@ pub fn finish_transport(
     let t_start = Instant::now();
     let b = &ib.basis;
     let levels = ib.levels();
+    let drop = estimate(ib, &t);
     let senders = b.level_offsets[params.sender_levels as usize] as usize;
     let receivers = b.len();
     let run = run_series(ib, &t, &params, policy, senders, obs)?;
@@ -290,7 +305,11 @@ pub fn finish_transport(
         ..
     } = run;
     let error = error_estimate(&report, rho, policy.tolerance, p.qerr, p.max_link);
-    let warnings = error_warnings(&error, &report, rho, needed, &params, policy, obs);
+    let mut warnings = error_warnings(&error, &report, rho, needed, &params, policy, obs);
+    if let Some(w) = refinement_warning(&drop, params.epsilon, policy.tolerance) {
+        obs.warn(&w);
+        warnings.push(w);
+    }
     let dense_links_bytes = senders as u64 * receivers as u64 * (LINK_DIM as u64 * 2);
     let report_section = TransportReport {
         bounce_mode: if policy.auto { "auto" } else { "fixed" }.into(),
@@ -349,6 +368,7 @@ pub fn finish_transport(
             },
             links: p.links,
             report: Some(report_section),
+            drop: Some(drop),
         },
         timings,
         warnings,

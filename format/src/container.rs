@@ -23,9 +23,9 @@
 //! # The version rule
 //! A reader reads the files of its own major version only. Within a major version:
 //! - a minor version may add sections under new tags, which older readers skip;
-//! - the sections of a baked file (`META`, `BASE`, `RTRE`, `TRNS`, `SLNK`, `TRPT`, `FLAT`) keep their
-//!   layout for the whole major version, so every reader of the major version reads them from
-//!   a file of any minor version;
+//! - the sections of a baked file (`META`, `BASE`, `RTRE`, `TRNS`, `SLNK`, `TRPT`, `FLAT`,
+//!   `TDRP`) keep their layout for the whole major version, so every reader of the major
+//!   version reads them from a file of any minor version;
 //! - the layout of `TSHD`, which only the intermediate shard files of `bake --shard` carry
 //!   (they are merged by the build that computed them), may change with a minor version. A
 //!   reader reads a `TSHD` section only from the minor versions with the layout it knows
@@ -34,10 +34,11 @@
 //!
 //! What each minor version added: 1.1 the transport operator (`TRNS`, `SLNK`); 1.2 the input
 //! key in the header; 1.3 the optional `TRPT` section (error estimate, bounce choice, what was
-//! left out); 1.4 the bounce policy in `TSHD` (its current layout); 1.5 the optional `FLAT`
-//! section (the one-level flat basis the viewer splats, `crate::flat_section`; a reader builds
-//! it from the basis and links of a file without one). From 1.4 the bake stores each level's
-//! points in Morton order; readers do not rely on it.
+//! left out); 1.4 the bounce policy in `TSHD`; 1.5 the optional `FLAT` section (the one-level
+//! flat basis the viewer splats, `crate::flat_section`; a reader builds it from the basis and
+//! links of a file without one), the optional `TDRP` section (the light the refinement of T
+//! dropped) and the per-row sums behind it in `TSHD` (its current layout). From 1.4 the bake
+//! stores each level's points in Morton order; readers do not rely on it.
 
 use std::ops::Deref;
 use std::path::Path;
@@ -52,7 +53,7 @@ pub const VERSION_MAJOR: u16 = 1;
 /// The minor version this build writes (the module docs list what each one added).
 pub const VERSION_MINOR: u16 = 5;
 /// The first minor version with the `TSHD` layout this build reads.
-pub const SHARD_LAYOUT_MINOR: u16 = 4;
+pub const SHARD_LAYOUT_MINOR: u16 = 5;
 pub const FIXED_HEADER: usize = 64;
 pub const ENTRY_SIZE: usize = 32;
 pub const ALIGN: usize = 16;

@@ -18,7 +18,7 @@ use crate::container::{
 use crate::error::FormatError;
 use crate::flat_section::{ArchivedFlatSection, FlatRule, FlatSection, StoredFlat};
 use crate::links::{ArchivedLinks, Links};
-use crate::meta::{Meta, TransportMeta, TransportReport};
+use crate::meta::{Meta, RefinementDrop, TransportMeta, TransportReport};
 use crate::rtree::RTree;
 use crate::shard::ShardSection;
 use crate::shepard::IndexedBasis;
@@ -38,6 +38,9 @@ pub const TAG_SHARD: [u8; 4] = *b"TSHD";
 /// Added in format 1.5: the one-level flat basis ([`FlatSection`]); optional, so older files
 /// still read (a viewer then builds the flat basis when it opens them).
 pub const TAG_FLAT: [u8; 4] = *b"FLAT";
+/// Added in format 1.5: the light the refinement of T dropped ([`RefinementDrop`]);
+/// optional, so older files still read.
+pub const TAG_DROP: [u8; 4] = *b"TDRP";
 
 /// The minor versions (of [`VERSION_MAJOR`]) from which this build reads the section `tag`:
 /// any for the sections of a baked file, whose layout is fixed within the major version; for
@@ -81,6 +84,8 @@ pub struct Transport {
     pub links: Links,
     /// The `TRPT` section; `None` in files written before format 1.3.
     pub report: Option<TransportReport>,
+    /// The `TDRP` section; `None` in files written before format 1.5.
+    pub drop: Option<RefinementDrop>,
 }
 
 /// How to write.
@@ -116,6 +121,10 @@ pub fn encode(contents: &BakeContents, opts: WriteOptions) -> Result<Vec<u8>, Fo
         if let Some(r) = &t.report {
             let bytes = rkyv::to_bytes::<rancor::Error>(r).map_err(ser_err(TAG_REPORT))?;
             sections.push((TAG_REPORT, bytes));
+        }
+        if let Some(d) = &t.drop {
+            let bytes = rkyv::to_bytes::<rancor::Error>(d).map_err(ser_err(TAG_DROP))?;
+            sections.push((TAG_DROP, bytes));
         }
     }
     if let Some(s) = &contents.shard {
@@ -349,6 +358,14 @@ impl BakedFile {
         self.section::<TransportReport>(TAG_REPORT).map(Some)
     }
 
+    /// The `TDRP` section, if the file has one (format 1.5 and later, with transport).
+    pub fn refinement_drop(&self) -> Result<Option<RefinementDrop>, FormatError> {
+        if !self.has_section(TAG_DROP) {
+            return Ok(None);
+        }
+        self.section::<RefinementDrop>(TAG_DROP).map(Some)
+    }
+
     /// The `TSHD` section of a shard file, validated against the basis' size.
     pub fn shard(&self) -> Result<Option<ShardSection>, FormatError> {
         if !self.has_section(TAG_SHARD) {
@@ -385,6 +402,7 @@ impl BakedFile {
                     meta,
                     links,
                     report: self.transport_report()?,
+                    drop: self.refinement_drop()?,
                 })
             }
         };
@@ -497,6 +515,7 @@ impl BakedFile {
             meta,
             transport: self.transport_meta()?,
             report: self.transport_report()?,
+            refinement_drop: self.refinement_drop()?,
         })
     }
 }
@@ -515,6 +534,8 @@ pub struct FileInfo {
     pub transport: Option<TransportMeta>,
     /// The `TRPT` section (format 1.3 and later).
     pub report: Option<TransportReport>,
+    /// The `TDRP` section (format 1.5 and later).
+    pub refinement_drop: Option<RefinementDrop>,
 }
 
 #[derive(Clone, Debug, Serialize)]

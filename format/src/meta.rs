@@ -298,3 +298,50 @@ data! {
         pub dense_links_bytes: u64,
     }
 }
+
+data! {
+    /// The `TDRP` section (since format 1.5; absent from older files, basis-only files and
+    /// shard files): the bake's estimate of the single-bounce light that the refinement of T
+    /// (Fig. 5 and its budget rule) dropped, under a representative emission: the file's own
+    /// light, its direct irradiance sampled at the sender points (one shadow ray each) and
+    /// pull-pushed onto the sender levels as the viewer does. At every processed receiver `i`
+    /// of level `l`, the irradiance along its normal that its gather found against what the
+    /// kept links reconstruct there (Eq. 6 over all levels), per colour channel, times
+    /// `R_l^2` (the area its basis function stands for), summed over the receivers in index
+    /// order. A new section rather than new fields of `TRPT`, whose layout is fixed within the
+    /// major version.
+    pub struct RefinementDrop {
+        /// The emission the sums weight the links by (`file light`).
+        pub emission: String,
+        /// Per colour channel, the light the kept links reconstruct, and the light the gathers
+        /// found minus that (what was dropped).
+        pub kept: [f64; 3],
+        pub dropped: [f64; 3],
+        /// `dropped / (kept + dropped)` in the colour channel where it is largest in
+        /// magnitude: positive when the dropped links would have added light (the file's
+        /// image is that much too dark), negative when they would have taken it away.
+        pub share: f64,
+    }
+}
+
+impl RefinementDrop {
+    /// The estimate from the summed light of the kept and dropped links.
+    pub fn new(emission: &str, kept: [f64; 3], dropped: [f64; 3]) -> RefinementDrop {
+        let share = (0..3)
+            .map(|c| {
+                let all = kept[c] + dropped[c];
+                if all > 0.0 {
+                    dropped[c] / all
+                } else {
+                    0.0
+                }
+            })
+            .fold(0.0f64, |m, d| if d.abs() > m.abs() { d } else { m });
+        RefinementDrop {
+            emission: emission.to_string(),
+            kept,
+            dropped,
+            share,
+        }
+    }
+}

@@ -29,6 +29,11 @@ pub struct ShardSection {
     pub t_links_per_level: Vec<u64>,
     pub rays: u64,
     pub unsupported_hits: u64,
+    /// Per row (format 1.5 and later), the single-bounce vector irradiance its gather found
+    /// under the representative emission (`LINK_DIM` floats per row), and that emission (3
+    /// floats per sender): what the merge needs for [`crate::meta::RefinementDrop`].
+    pub row_gathered: Vec<f32>,
+    pub emission: Vec<f32>,
 }
 
 impl ShardSection {
@@ -46,6 +51,8 @@ impl ShardSection {
             || self.offsets.windows(2).any(|w| w[0] > w[1])
             || self.offsets.last().map(|&o| o as usize) != Some(self.senders.len())
             || self.values.len() != self.senders.len() * LINK_DIM
+            || self.row_gathered.len() != self.rows.len() * LINK_DIM
+            || !self.emission.len().is_multiple_of(3)
         {
             return Err("row arrays are inconsistent".into());
         }

@@ -79,7 +79,7 @@ fn report(args: &BakeArgs, output: &Path, size: u64, out: &BakeOutput) -> Result
                 transport_table(&t.meta, out.transport_timings.as_ref())
             );
             if let Some(r) = &t.report {
-                eprint!("{}", estimate_table(r));
+                eprint!("{}", estimate_table(r, t.drop.as_ref()));
             }
         }
     }
