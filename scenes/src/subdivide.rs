@@ -149,7 +149,10 @@ mod tests {
                 .map(|(i, j)| (i.min(j), i.max(j)))
                 .collect();
             let euler = m.positions.len() as i64 - edges.len() as i64 + m.triangles.len() as i64;
-            assert_eq!(euler, 1, "levels {levels}: a crack or a duplicated midpoint");
+            assert_eq!(
+                euler, 1,
+                "levels {levels}: a crack or a duplicated midpoint"
+            );
             for parent in 0..2u32 {
                 let children = parent as usize * per_parent..(parent as usize + 1) * per_parent;
                 let sum: f64 = children.clone().map(|t| area(&m, t as u32)).sum();

@@ -378,8 +378,11 @@ fn subdivide_keeps_the_surface() {
     assert_eq!(tris, 2);
     let mut hashes = vec![source.content_hash];
     for levels in 1..=2u32 {
-        let scene = load(&format!("s{levels}.toml"), &format!("subdivide = {levels}\n"))
-            .expect("subdivided");
+        let scene = load(
+            &format!("s{levels}.toml"),
+            &format!("subdivide = {levels}\n"),
+        )
+        .expect("subdivided");
         let (n, a) = area(&scene);
         assert_eq!(n, 2 * 4usize.pow(levels));
         assert!((a - a0).abs() < 1e-6, "area {a} vs {a0}");
@@ -402,9 +405,15 @@ fn subdivide_keeps_the_surface() {
         }
         hashes.push(scene.content_hash);
     }
-    assert!(hashes[0] != hashes[1] && hashes[1] != hashes[2], "{hashes:?}");
+    assert!(
+        hashes[0] != hashes[1] && hashes[1] != hashes[2],
+        "{hashes:?}"
+    );
     let e = load("too_many.toml", "subdivide = 9\n")
         .expect_err("too many levels")
         .to_string();
-    assert!(e.contains("too_many.toml") && e.contains("subdivide"), "{e}");
+    assert!(
+        e.contains("too_many.toml") && e.contains("subdivide"),
+        "{e}"
+    );
 }
