@@ -92,6 +92,7 @@ for c in $CASES; do
     -o "$WORK/$c.mlt" --stats-json "$WORK/$c.json" $ARGS >"$WORK/$c.log" 2>&1 ||
     { echo "$c failed: see $WORK/$c.log" >&2; tail -5 "$WORK/$c.log" >&2; exit 1; }
   mv "$WORK/$c.time.tmp" "$WORK/$c.time"
+  echo "$BIN/bake ($("$BIN/bake" --version))" >"$WORK/$c.bin"
   ((KEEP == 1)) || rm -f "$WORK/$c.mlt"
   grep -E 'Elapsed|Maximum resident' "$WORK/$c.time" >&2
 done
@@ -144,6 +145,13 @@ md=$OUT.md
     function t(x) { return x >= 60 ? sprintf("%d:%04.1f", int(x / 60), x - 60 * int(x / 60)) : sprintf("%.1f s", x) }
     { printf "| %s | %s | %d | %s | %s | %s | %d | %s | %s | %s | %s | %s | %s MB | %.1f MB |\n",
         $1, n($4), $5, n($6), n($7), n($8), $9, t($11), t($12), t($13), t($15), t($17), n($18), $20 }'
+  bins=$(for c in $seen; do if [[ -s $WORK/$c.bin ]]; then echo "$(cat "$WORK/$c.bin"): $c"; fi; done |
+         awk -F': ' '{b[$1] = b[$1] (b[$1] ? ", " : "") $2} END {for (k in b) print "- " k ": " b[k]}' | sort)
+  if [[ -n $bins ]]; then
+    echo
+    echo "Bake binaries:"
+    echo "$bins"
+  fi
 } >"$md"
 echo "wrote $md" >&2
 
