@@ -17,6 +17,7 @@
 #   OUT    output prefix: OUT.csv, OUT.md, OUT.png [docs/scaling]
 #   ARGS   extra bake arguments for every case (e.g. "--threads 1") [none]
 #   KEEP   1 keeps the baked .mlt files in WORK [0: deleted once measured]
+#   MLT_SHARED  the third-party scenes' root, for manifests that name ../../shared [../shared]
 # Build first: cargo build --release -p mlt-bake -p mlt-plot
 # Peak memory is the process's maximum resident set (/usr/bin/time -v), which also covers
 # writing the file; the bake's own figure (stats JSON, at the end of the transport) is in the CSV.
@@ -28,12 +29,14 @@ WORK=${WORK:-$ROOT/target/scaling}
 OUT=${OUT:-$ROOT/docs/scaling}
 ARGS=${ARGS:-}
 KEEP=${KEEP:-0}
+SHARED=${MLT_SHARED:-$ROOT/../shared}
 ALL_CASES="sponza_l4 sponza_l5 sponza_l6 sponza_x4 sponza_x16 conference_l6 sponza_l7"
 CASES=${CASES:-$ALL_CASES}
 if [[ -z ${PLOT:-} ]]; then
   PLOT=$ROOT/target/release/plot_scaling
   [[ -x $PLOT ]] || PLOT=$ROOT/target/debug/plot_scaling
 fi
+[[ -d $SHARED/scenes ]] || { echo "no $SHARED/scenes: set MLT_SHARED" >&2; exit 1; }
 [[ -x $BIN/bake ]] || { echo "missing $BIN/bake: cargo build --release -p mlt-bake" >&2; exit 1; }
 [[ -x /usr/bin/time ]] || { echo "needs GNU time (/usr/bin/time -v) for peak memory" >&2; exit 1; }
 command -v jq >/dev/null || { echo "needs jq" >&2; exit 1; }
@@ -62,18 +65,17 @@ parse_case() {
   [[ -f $ROOT/scenes/$SCENE.toml ]] || { echo "$c: no scenes/$SCENE.toml" >&2; return 1; }
 }
 
-# The manifest a case bakes: the scene's own, or a copy in WORK with `subdivide` added to
-# `[scene]` and a relative mesh path made absolute.
+# The manifest a case bakes: a copy of the scene's in WORK, its mesh path made absolute (the
+# third-party scenes from SHARED, the others from scenes/) and, when asked, `subdivide` added
+# to `[scene]`.
 manifest_for() {
-  local src=$ROOT/scenes/$SCENE.toml
-  if ((SUBDIVIDE == 0)); then
-    echo "$src"
-    return
-  fi
   local m=$WORK/${SCENE}_subdivide$SUBDIVIDE.toml
-  sed -e "s|^\[scene\]|[scene]\nsubdivide = $SUBDIVIDE|" \
+  local add=""
+  ((SUBDIVIDE == 0)) || add="\nsubdivide = $SUBDIVIDE"
+  sed -e "s|^\[scene\]|[scene]$add|" \
+      -e "s|^source = \"\.\./\.\./shared/|source = \"$SHARED/|" \
       -e "/^source = \"builtin:/!s|^source = \"\([^/][^\"]*\)\"|source = \"$ROOT/scenes/\1\"|" \
-      "$src" >"$m"
+      "$ROOT/scenes/$SCENE.toml" >"$m"
   echo "$m"
 }
 
