@@ -1,15 +1,16 @@
 #!/usr/bin/env bash
 # How the bake's cost grows (issue 14): bake time per phase, peak memory and file size against
 # the triangle count at fixed geometry (Sponza with every triangle split into 4 and 16 by
-# `[scene] subdivide`), against the receiver levels (Sponza at 4 to 7), and for the conference
-# room at 6 levels. Default preset (converged bounces), all threads, one bake at a time.
+# `[scene] subdivide`, at 5 and at 6 receiver levels), against the receiver levels (Sponza at 4
+# to 7), and for the conference room at 6 levels. Default preset (converged bounces), all
+# threads, one bake at a time.
 #
 # Usage: scripts/bench_scaling.sh
 # Environment (defaults in brackets):
-#   CASES  the cases to bake, in order [sponza_l4 sponza_l5 sponza_l6 sponza_x4 sponza_x16
-#          conference_l6 sponza_l7]. A case is SCENE[_xK][_lN]: scenes/SCENE.toml with every
-#          triangle split into K = 4^s (subdivide = s) at N receiver levels [6], e.g. cornell_l3,
-#          cornell_x4_l3. A case whose statistics exist in WORK is not baked again (delete
+#   CASES  the cases to bake, in order [sponza_l4 sponza_l5 sponza_x4_l5 sponza_x16_l5 sponza_l6
+#          sponza_x16 conference_l6 sponza_x4 sponza_l7: the cheap ones first]. A case is
+#          SCENE[_xK][_lN]: scenes/SCENE.toml with every triangle split into K = 4^s
+#          (subdivide = s) at N receiver levels [6], e.g. cornell_l3, cornell_x4_l3. A case whose statistics exist in WORK is not baked again (delete
 #          WORK/CASE.json to redo it); the table and the plot hold every case found in WORK.
 #   BIN    directory of the release `bake` [target/release]
 #   PLOT   the plot_scaling binary [target/release/plot_scaling, else target/debug/plot_scaling]
@@ -30,8 +31,9 @@ OUT=${OUT:-$ROOT/docs/scaling}
 ARGS=${ARGS:-}
 KEEP=${KEEP:-0}
 SHARED=${MLT_SHARED:-$ROOT/../shared}
-ALL_CASES="sponza_l4 sponza_l5 sponza_l6 sponza_x4 sponza_x16 conference_l6 sponza_l7"
-CASES=${CASES:-$ALL_CASES}
+# The table's order: the receiver levels, then the triangles.
+ALL_CASES="sponza_l4 sponza_l5 sponza_l6 sponza_l7 sponza_x4_l5 sponza_x16_l5 sponza_x4 sponza_x16 conference_l6"
+CASES=${CASES:-sponza_l4 sponza_l5 sponza_x4_l5 sponza_x16_l5 sponza_l6 sponza_x16 conference_l6 sponza_x4 sponza_l7}
 if [[ -z ${PLOT:-} ]]; then
   PLOT=$ROOT/target/release/plot_scaling
   [[ -x $PLOT ]] || PLOT=$ROOT/target/debug/plot_scaling

@@ -1,8 +1,9 @@
 //! `plot_scaling SCALING.csv --out PLOT.png`: the plot of `scripts/bench_scaling.sh`'s CSV, four
-//! log-scale panels: bake time per phase (placement, refinement of T, bounces, total) and peak
-//! memory and file size against the triangle count (the cases at `--levels` receiver levels,
-//! one line per scene), and the same against the receiver levels (the cases without
-//! subdivision, one line per scene).
+//! panels with logarithmic value axes: bake time per phase (placement, refinement of T,
+//! bounces, total wall clock, and the total CPU time) and peak memory and file size against the
+//! triangle count (log axis; one line per scene and receiver levels), and the same against the
+//! receiver levels (one line per scene and subdivision). Lines of one case only are left out,
+//! except for a scene baked once (drawn as single markers).
 //!
 //! Text is drawn with ab_glyph from a TrueType font file (`--font`, default DejaVu Sans from
 //! the usual system path); no fontconfig or freetype is needed.
@@ -20,14 +21,11 @@ use plotters::prelude::*;
 #[command(name = "plot_scaling", version)]
 struct Cli {
     /// The scaling CSV (header row; columns scene, subdivide, triangles, levels, placement_s,
-    /// refine_s, bounces_s, total_s, peak_mb, file_mb).
+    /// refine_s, bounces_s, total_s, cpu_s, peak_mb, file_mb).
     csv: PathBuf,
     /// The PNG to write.
     #[arg(long)]
     out: PathBuf,
-    /// The receiver levels of the cases plotted against the triangle count.
-    #[arg(long, default_value_t = 6)]
-    levels: u32,
     /// TrueType font for the text.
     #[arg(
         long,
@@ -46,6 +44,7 @@ struct Row {
     refine_s: f64,
     bounces_s: f64,
     total_s: f64,
+    cpu_s: f64,
     peak_mb: f64,
     file_mb: f64,
 }
@@ -118,6 +117,7 @@ fn read_rows(path: &Path) -> Result<Vec<Row>> {
             refine_s: cols.num(&f, "refine_s", row)?,
             bounces_s: cols.num(&f, "bounces_s", row)?,
             total_s: cols.num(&f, "total_s", row)?,
+            cpu_s: cols.num(&f, "cpu_s", row)?,
             peak_mb: cols.num(&f, "peak_mb", row)?,
             file_mb: cols.num(&f, "file_mb", row)?,
         });
@@ -157,11 +157,16 @@ struct Quantity {
     value: fn(&Row) -> f64,
 }
 
-const TIMES: [Quantity; 4] = [
+const TIMES: [Quantity; 5] = [
     Quantity {
         name: "total",
         colour: RGBColor(20, 20, 20),
         value: |r| r.total_s,
+    },
+    Quantity {
+        name: "CPU (user + system)",
+        colour: RGBColor(150, 150, 150),
+        value: |r| r.cpu_s,
     },
     Quantity {
         name: "refinement of T",
@@ -205,18 +210,23 @@ struct Panel<'a> {
     quantities: &'a [Quantity],
 }
 
-/// Rows grouped by scene (in order of first appearance), each group sorted by `x`.
-fn by_scene<'a>(
-    rows: impl Iterator<Item = &'a Row>,
+/// Rows grouped into lines by `key` (in order of first appearance), each sorted by `x`; lines
+/// of one row are dropped unless their scene has only that row.
+fn lines<'a>(
+    rows: &'a [Row],
+    key: impl Fn(&Row) -> String,
     x: fn(&Row) -> f64,
 ) -> Vec<(String, Vec<&'a Row>)> {
     let mut groups: Vec<(String, Vec<&Row>)> = Vec::new();
     for r in rows {
-        match groups.iter_mut().find(|(s, _)| *s == r.scene) {
+        let k = key(r);
+        match groups.iter_mut().find(|(s, _)| *s == k) {
             Some((_, g)) => g.push(r),
-            None => groups.push((r.scene.clone(), vec![r])),
+            None => groups.push((k, vec![r])),
         }
     }
+    let alone = |r: &Row| rows.iter().filter(|o| o.scene == r.scene).count() == 1;
+    groups.retain(|(_, g)| g.len() > 1 || alone(g[0]));
     for (_, g) in &mut groups {
         g.sort_by(|a, b| x(a).total_cmp(&x(b)));
     }
@@ -330,34 +340,37 @@ fn main() -> Result<()> {
     let rows = read_rows(&cli.csv)?;
     let tri_x: fn(&Row) -> f64 = |r| r.triangles.log10();
     let level_x: fn(&Row) -> f64 = |r| r.levels as f64;
-    let at_levels = || rows.iter().filter(|r| r.levels == cli.levels);
-    let unsplit = || rows.iter().filter(|r| r.subdivide == 0);
+    let by_levels = |r: &Row| format!("{}, {} levels", r.scene, r.levels);
+    let by_split = |r: &Row| match r.subdivide {
+        0 => r.scene.clone(),
+        s => format!("{} x{}", r.scene, 4u64.pow(s)),
+    };
     let panels = [
         Panel {
-            title: format!("bake time vs triangles ({} receiver levels)", cli.levels),
+            title: "bake time vs triangles".to_string(),
             x_label: "triangles (log)",
-            y_label: "seconds (wall clock)",
+            y_label: "seconds",
             x: tri_x,
             x_format: |v| count(10f64.powf(v)),
-            lines: by_scene(at_levels(), tri_x),
+            lines: lines(&rows, by_levels, tri_x),
             quantities: &TIMES,
         },
         Panel {
-            title: format!("memory and file vs triangles ({} levels)", cli.levels),
+            title: "memory and file vs triangles".to_string(),
             x_label: "triangles (log)",
             y_label: "MB",
             x: tri_x,
             x_format: |v| count(10f64.powf(v)),
-            lines: by_scene(at_levels(), tri_x),
+            lines: lines(&rows, by_levels, tri_x),
             quantities: &SIZES,
         },
         Panel {
             title: "bake time vs receiver levels".to_string(),
             x_label: "receiver levels",
-            y_label: "seconds (wall clock)",
+            y_label: "seconds",
             x: level_x,
             x_format: integer,
-            lines: by_scene(unsplit(), level_x),
+            lines: lines(&rows, by_split, level_x),
             quantities: &TIMES,
         },
         Panel {
@@ -366,7 +379,7 @@ fn main() -> Result<()> {
             y_label: "MB",
             x: level_x,
             x_format: integer,
-            lines: by_scene(unsplit(), level_x),
+            lines: lines(&rows, by_split, level_x),
             quantities: &SIZES,
         },
     ];
