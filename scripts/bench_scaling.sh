@@ -81,6 +81,32 @@ manifest_for() {
   echo "$m"
 }
 
+# On each new line of the bake's log (one per stage), the process's CPU time so far (user +
+# system, in clock ticks) and the line: the phases' CPU times, which the wall-clock times the
+# bake reports do not give on a loaded machine. Polled twice a second.
+monitor() {
+  local pid=$1 log=$2 out=$3 seen=0 n cpu stat
+  : >"$out"
+  while [[ -r /proc/$pid/stat ]]; do
+    read -r -a stat <"/proc/$pid/stat" || break
+    cpu=$((stat[13] + stat[14]))
+    n=$(wc -l <"$log")
+    if ((n > seen)); then
+      tail -n +$((seen + 1)) "$log" | head -n $((n - seen)) | sed "s|^|$cpu\t|" >>"$out"
+      seen=$n
+    fi
+    sleep 0.5
+  done
+}
+
+# CPU seconds of a phase from CASE.cpu: the ticks at the line matching $3 less those at $2.
+phase_cpu() {
+  [[ -s $1 ]] || { echo ""; return; }
+  awk -F'\t' -v a="$2" -v b="$3" -v tck="$(getconf CLK_TCK)" '
+    $2 ~ a && ta == "" { ta = $1 } $2 ~ b && tb == "" { tb = $1 }
+    END { if (ta != "" && tb != "") printf "%.2f", (tb - ta) / tck }' "$1"
+}
+
 # 1. The bakes.
 for c in $CASES; do
   parse_case "$c"
@@ -90,11 +116,21 @@ for c in $CASES; do
   fi
   manifest=$(manifest_for)
   echo "== $c: $BIN/bake $manifest --receiver-levels $LEVELS $ARGS ($(date -u +%H:%M:%S))" >&2
-  rm -f "$WORK/$c.json" "$WORK/$c.time"
+  rm -f "$WORK/$c.json" "$WORK/$c.time" "$WORK/$c.cpu"
+  : >"$WORK/$c.log"
   # shellcheck disable=SC2086
   /usr/bin/time -v -o "$WORK/$c.time.tmp" "$BIN/bake" "$manifest" --receiver-levels "$LEVELS" \
-    -o "$WORK/$c.mlt" --stats-json "$WORK/$c.json" $ARGS >"$WORK/$c.log" 2>&1 ||
-    { echo "$c failed: see $WORK/$c.log" >&2; tail -5 "$WORK/$c.log" >&2; exit 1; }
+    -o "$WORK/$c.mlt" --stats-json "$WORK/$c.json" $ARGS >"$WORK/$c.log" 2>&1 &
+  timer=$!
+  sleep 0.2
+  bake_pid=$(pgrep -P "$timer" || true)
+  [[ -z $bake_pid ]] || monitor "$bake_pid" "$WORK/$c.log" "$WORK/$c.cpu" &
+  wait "$timer" || { echo "$c failed: see $WORK/$c.log" >&2; tail -5 "$WORK/$c.log" >&2; exit 1; }
+  wait
+  # The lines written after the last poll ended before the exit: the process's total CPU.
+  ticks=$(awk -F': ' -v tck="$(getconf CLK_TCK)" '/User time/{u=$2} /System time/{s=$2}
+                      END{printf "%d", (u + s) * tck}' "$WORK/$c.time.tmp")
+  tail -n +$(($(wc -l <"$WORK/$c.cpu") + 1)) "$WORK/$c.log" | sed "s|^|$ticks\t|" >>"$WORK/$c.cpu"
   mv "$WORK/$c.time.tmp" "$WORK/$c.time"
   echo "$BIN/bake ($("$BIN/bake" --version))" >"$WORK/$c.bin"
   ((KEEP == 1)) || rm -f "$WORK/$c.mlt"
@@ -105,7 +141,7 @@ done
 csv=$OUT.csv
 found=$(for c in $ALL_CASES; do echo "$c"; done
         for f in "$WORK"/*.json; do [[ -e $f ]] && basename "$f" .json; done)
-echo "case,scene,subdivide,triangles,levels,points,links,gather_rays,bounces,load_s,placement_s,refine_s,bounces_s,write_s,total_s,wall_s,cpu_s,peak_mb,bake_peak_mb,file_mb,threads" >"$csv"
+echo "case,scene,subdivide,triangles,levels,points,links,gather_rays,bounces,load_s,placement_s,refine_s,bounces_s,write_s,total_s,wall_s,cpu_s,placement_cpu_s,refine_cpu_s,bounces_cpu_s,peak_mb,bake_peak_mb,file_mb,threads" >"$csv"
 seen=" "
 for c in $found; do
   [[ $seen == *" $c "* ]] && continue
@@ -116,8 +152,10 @@ for c in $found; do
   wall=$(awk -F': ' '/Elapsed \(wall clock\)/{n=split($2,a,":"); s=0; for(i=1;i<=n;i++) s=s*60+a[i]; print s}' "$t")
   cpu=$(awk -F': ' '/User time/{u=$2} /System time/{s=$2} END{print u+s}' "$t")
   rss=$(awk -F': ' '/Maximum resident set size/{printf "%.1f", $2/1000}' "$t")
+  k=$WORK/$c.cpu
+  phases="$(phase_cpu "$k" 'ray-casting structure' 'r-trees:'),$(phase_cpu "$k" 'r-trees:' 'refinement of T:'),$(phase_cpu "$k" 'refinement of T:' 'indirect bounces:')"
   jq -r --arg c "$c" --arg scene "$SCENE" --arg sub "$SUBDIVIDE" --arg wall "$wall" \
-     --arg cpu "$cpu" --arg rss "$rss" '
+     --arg cpu "$cpu" --arg rss "$rss" --arg phases "$phases" '
     def r(n): . * pow(10; n) | round / pow(10; n);
     [$c, $scene, $sub, .meta.scene.triangles, .transport.params.receiver_levels,
      .meta.stats.points, .transport.stats.links, .transport.stats.visibility_rays,
@@ -126,7 +164,7 @@ for c in $found; do
      (.timings.candidates_s + .timings.poisson_s + .timings.rtrees_s | r(2)),
      (.transport.timings.refine_s | r(2)), (.transport.timings.bounces_s | r(2)),
      (.timings.write_s | r(2)), (.timings.total_s | r(2)), ($wall | tonumber | r(2)),
-     ($cpu | tonumber | r(2)), ($rss | tonumber),
+     ($cpu | tonumber | r(2)), $phases, ($rss | tonumber),
      (.transport.timings.peak_rss_bytes / 1e6 | r(1)), (.file_bytes / 1e6 | r(2)),
      .timings.threads] | map(tostring) | join(",")' "$j" >>"$csv"
 done
@@ -137,18 +175,21 @@ md=$OUT.md
 {
   echo "Command: \`scripts/bench_scaling.sh\` (CASES=\"$CASES\"${ARGS:+, ARGS=\"$ARGS\"}), default preset"
   echo "(converged bounces), one bake at a time. $MACHINE."
-  echo "Times are wall clock; \"CPU\" is user + system time of the whole process; peak memory is"
-  echo "the process's maximum resident set."
+  echo "Phase times are CPU seconds (user + system, all threads) of the bake process between its"
+  echo "stage log lines; \"wall\" is the whole bake's wall-clock time; peak memory is the process's"
+  echo "maximum resident set. Placement is the importance particles and the Poisson-disk levels;"
+  echo "the refinement of T is the gather of every refined receiver (Eq. 16-17, Fig. 5)."
   echo
-  echo "| case | triangles | receiver levels | points | links | gather rays | bounces | placement | refinement of T | bounces | total | CPU | peak memory | file |"
+  echo "| case | triangles | receiver levels | points | links | gather rays | bounces | placement | refinement of T | bounces | total CPU | wall | peak memory | file |"
   echo "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
   tail -n +2 "$csv" | awk -F, '
     function n(x,   s, out) { s = sprintf("%d", x); out = "";
       while (length(s) > 3) { out = "," substr(s, length(s) - 2) out; s = substr(s, 1, length(s) - 3) }
       return s out }
-    function t(x) { return x >= 60 ? sprintf("%d:%04.1f", int(x / 60), x - 60 * int(x / 60)) : sprintf("%.1f s", x) }
+    function t(x) { if (x == "") return "-";
+      return x >= 60 ? sprintf("%d:%04.1f", int(x / 60), x - 60 * int(x / 60)) : sprintf("%.1f s", x) }
     { printf "| %s | %s | %d | %s | %s | %s | %d | %s | %s | %s | %s | %s | %s MB | %.1f MB |\n",
-        $1, n($4), $5, n($6), n($7), n($8), $9, t($11), t($12), t($13), t($15), t($17), n($18), $20 }'
+        $1, n($4), $5, n($6), n($7), n($8), $9, t($18), t($19), t($20), t($17), t($16), n($21), $23 }'
   bins=$(for c in $seen; do if [[ -s $WORK/$c.bin ]]; then echo "$(cat "$WORK/$c.bin"): $c"; fi; done |
          awk -F': ' '{b[$1] = b[$1] (b[$1] ? ", " : "") $2} END {for (k in b) print "- " k ": " b[k]}' | sort)
   if [[ -n $bins ]]; then

@@ -1,6 +1,6 @@
 //! `plot_scaling SCALING.csv --out PLOT.png`: the plot of `scripts/bench_scaling.sh`'s CSV, four
-//! panels with logarithmic value axes: bake time per phase (placement, refinement of T,
-//! bounces, total wall clock, and the total CPU time) and peak memory and file size against the
+//! panels with logarithmic value axes: bake time (CPU time per phase: placement, refinement of
+//! T, bounces; the total's CPU and wall-clock time) and peak memory and file size against the
 //! triangle count (log axis; one line per scene and receiver levels), and the same against the
 //! receiver levels (one line per scene and subdivision). Lines of one case only are left out,
 //! except for a scene baked once (drawn as single markers).
@@ -13,6 +13,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, bail, Context, Result};
 use clap::Parser;
+use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
@@ -20,8 +21,9 @@ use plotters::prelude::*;
 #[derive(Parser)]
 #[command(name = "plot_scaling", version)]
 struct Cli {
-    /// The scaling CSV (header row; columns scene, subdivide, triangles, levels, placement_s,
-    /// refine_s, bounces_s, total_s, cpu_s, peak_mb, file_mb).
+    /// The scaling CSV (header row; columns scene, subdivide, triangles, levels,
+    /// placement_cpu_s, refine_cpu_s, bounces_cpu_s (empty where not measured), wall_s, cpu_s,
+    /// peak_mb, file_mb).
     csv: PathBuf,
     /// The PNG to write.
     #[arg(long)]
@@ -40,10 +42,11 @@ struct Row {
     subdivide: u32,
     triangles: f64,
     levels: u32,
-    placement_s: f64,
-    refine_s: f64,
-    bounces_s: f64,
-    total_s: f64,
+    /// CPU seconds of the phases, NaN where not measured.
+    placement_cpu_s: f64,
+    refine_cpu_s: f64,
+    bounces_cpu_s: f64,
+    wall_s: f64,
     cpu_s: f64,
     peak_mb: f64,
     file_mb: f64,
@@ -62,6 +65,15 @@ impl Columns<'_> {
             .get(name)
             .ok_or_else(|| anyhow!("{}: no column {name}", self.path.display()))?;
         Ok(fields[i])
+    }
+
+    /// A number, or NaN where the field is empty.
+    fn optional(&self, fields: &[&str], name: &str, row: usize) -> Result<f64> {
+        if self.get(fields, name)?.is_empty() {
+            Ok(f64::NAN)
+        } else {
+            self.num(fields, name, row)
+        }
     }
 
     fn num(&self, fields: &[&str], name: &str, row: usize) -> Result<f64> {
@@ -113,10 +125,10 @@ fn read_rows(path: &Path) -> Result<Vec<Row>> {
             subdivide: cols.num(&f, "subdivide", row)? as u32,
             triangles: cols.num(&f, "triangles", row)?,
             levels: cols.num(&f, "levels", row)? as u32,
-            placement_s: cols.num(&f, "placement_s", row)?,
-            refine_s: cols.num(&f, "refine_s", row)?,
-            bounces_s: cols.num(&f, "bounces_s", row)?,
-            total_s: cols.num(&f, "total_s", row)?,
+            placement_cpu_s: cols.optional(&f, "placement_cpu_s", row)?,
+            refine_cpu_s: cols.optional(&f, "refine_cpu_s", row)?,
+            bounces_cpu_s: cols.optional(&f, "bounces_cpu_s", row)?,
+            wall_s: cols.num(&f, "wall_s", row)?,
             cpu_s: cols.num(&f, "cpu_s", row)?,
             peak_mb: cols.num(&f, "peak_mb", row)?,
             file_mb: cols.num(&f, "file_mb", row)?,
@@ -159,29 +171,29 @@ struct Quantity {
 
 const TIMES: [Quantity; 5] = [
     Quantity {
-        name: "total",
-        colour: RGBColor(20, 20, 20),
-        value: |r| r.total_s,
+        name: "total, wall clock",
+        colour: RGBColor(150, 150, 150),
+        value: |r| r.wall_s,
     },
     Quantity {
-        name: "CPU (user + system)",
-        colour: RGBColor(150, 150, 150),
+        name: "total, CPU",
+        colour: RGBColor(20, 20, 20),
         value: |r| r.cpu_s,
     },
     Quantity {
-        name: "refinement of T",
+        name: "refinement of T, CPU",
         colour: RGBColor(30, 90, 200),
-        value: |r| r.refine_s,
+        value: |r| r.refine_cpu_s,
     },
     Quantity {
-        name: "placement",
+        name: "placement, CPU",
         colour: RGBColor(30, 150, 60),
-        value: |r| r.placement_s,
+        value: |r| r.placement_cpu_s,
     },
     Quantity {
-        name: "bounces",
+        name: "bounces, CPU",
         colour: RGBColor(220, 120, 20),
-        value: |r| r.bounces_s,
+        value: |r| r.bounces_cpu_s,
     },
 ];
 
@@ -265,10 +277,82 @@ fn linear_range(v: impl Iterator<Item = f64>) -> (f64, f64) {
     (lo - pad, hi + pad)
 }
 
+/// The chart of one panel: linear x, logarithmic y.
+type Chart<'a> = ChartContext<'a, BitMapBackend<'a>, Cartesian2d<RangedCoordf64, LogCoord<f64>>>;
+
+/// How the lines of a panel differ: solid with circles, dashed with triangles, dotted with
+/// crosses.
+const LINE_STYLES: [&str; 3] = ["solid, circles", "dashed, triangles", "dotted, crosses"];
+
+/// Draws one line of `points` in `colour` in the style of line `line`.
+fn draw_line(
+    chart: &mut Chart,
+    line: usize,
+    points: &[(f64, f64)],
+    colour: RGBColor,
+) -> Result<()> {
+    let style = colour.stroke_width(2);
+    let pts = points.iter().copied();
+    match line % 3 {
+        0 => {
+            chart.draw_series(LineSeries::new(pts, style))?;
+            chart.draw_series(points.iter().map(|&p| Circle::new(p, 5, colour.filled())))?;
+        }
+        1 => {
+            chart.draw_series(DashedLineSeries::new(pts, 8, 5, style))?;
+            chart.draw_series(
+                points
+                    .iter()
+                    .map(|&p| TriangleMarker::new(p, 7, colour.filled())),
+            )?;
+        }
+        _ => {
+            chart.draw_series(DashedLineSeries::new(pts, 2, 4, style))?;
+            chart.draw_series(
+                points
+                    .iter()
+                    .map(|&p| Cross::new(p, 6, colour.stroke_width(3))),
+            )?;
+        }
+    }
+    Ok(())
+}
+
+/// The legend: one entry per quantity (its colour) and one per line (its style).
+fn draw_legend<'a>(chart: &mut Chart<'a>, panel: &Panel) -> Result<()> {
+    let none = || std::iter::empty::<PathElement<(f64, f64)>>();
+    for q in panel.quantities {
+        let style = q.colour.stroke_width(3);
+        chart
+            .draw_series(none())?
+            .label(q.name)
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], style));
+    }
+    for (line, (name, _)) in panel.lines.iter().enumerate() {
+        let series = chart.draw_series(none())?;
+        series.label(format!("{name}: {}", LINE_STYLES[line % 3]));
+        match line % 3 {
+            0 => series.legend(|(x, y)| Circle::new((x + 10, y), 5, BLACK.filled())),
+            1 => series.legend(|(x, y)| TriangleMarker::new((x + 10, y), 7, BLACK.filled())),
+            _ => series.legend(|(x, y)| Cross::new((x + 10, y), 6, BLACK.stroke_width(3))),
+        };
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperLeft)
+        .label_font(("sans-serif", 13))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()?;
+    Ok(())
+}
+
 fn draw_panel(area: &DrawingArea<BitMapBackend, Shift>, panel: &Panel) -> Result<()> {
     let all = || panel.lines.iter().flat_map(|(_, g)| g.iter().copied());
     let (x0, x1) = linear_range(all().map(panel.x));
     let (y0, y1) = range(all().flat_map(|r| panel.quantities.iter().map(move |q| (q.value)(r))));
+    // Room above the data for the legend.
+    let y1 = y1 * (y1 / y0).powf(0.6);
     let mut chart = ChartBuilder::on(area)
         .caption(&panel.title, ("sans-serif", 20))
         .margin(15)
@@ -285,49 +369,17 @@ fn draw_panel(area: &DrawingArea<BitMapBackend, Shift>, panel: &Panel) -> Result
         .label_style(("sans-serif", 14))
         .axis_desc_style(("sans-serif", 15))
         .draw()?;
-    for (s, (scene, group)) in panel.lines.iter().enumerate() {
+    for (line, (_, group)) in panel.lines.iter().enumerate() {
         for q in panel.quantities {
             let points: Vec<(f64, f64)> = group
                 .iter()
                 .map(|r| ((panel.x)(r), (q.value)(r)))
-                .filter(|p| p.1 > 0.0)
+                .filter(|p| p.1 > 0.0 && p.1.is_finite())
                 .collect();
-            let colour = q.colour;
-            let style = colour.stroke_width(2);
-            let series = if s == 0 {
-                chart.draw_series(LineSeries::new(points.clone(), style))?
-            } else {
-                chart.draw_series(DashedLineSeries::new(points.clone(), 6, 4, style))?
-            };
-            series
-                .label(format!("{} ({scene})", q.name))
-                .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], style));
-            // A marker per scene: circles for the first, triangles for the second, crosses.
-            match s % 3 {
-                0 => {
-                    chart.draw_series(points.iter().map(|&p| Circle::new(p, 5, colour.filled())))?
-                }
-                1 => chart.draw_series(
-                    points
-                        .iter()
-                        .map(|&p| TriangleMarker::new(p, 7, colour.filled())),
-                )?,
-                _ => chart.draw_series(
-                    points
-                        .iter()
-                        .map(|&p| Cross::new(p, 6, colour.stroke_width(3))),
-                )?,
-            };
+            draw_line(&mut chart, line, &points, q.colour)?;
         }
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperLeft)
-        .label_font(("sans-serif", 13))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .draw()?;
-    Ok(())
+    draw_legend(&mut chart, panel)
 }
 
 fn main() -> Result<()> {
