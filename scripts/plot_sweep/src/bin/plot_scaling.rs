@@ -224,11 +224,11 @@ struct Panel<'a> {
 
 /// Rows grouped into lines by `key` (in order of first appearance), each sorted by `x`; lines
 /// of one row are dropped unless their scene has only that row.
-fn lines<'a>(
-    rows: &'a [Row],
+fn lines(
+    rows: &[Row],
     key: impl Fn(&Row) -> String,
     x: fn(&Row) -> f64,
-) -> Vec<(String, Vec<&'a Row>)> {
+) -> Vec<(String, Vec<&Row>)> {
     let mut groups: Vec<(String, Vec<&Row>)> = Vec::new();
     for r in rows {
         let k = key(r);
