@@ -173,8 +173,8 @@ echo "wrote $csv" >&2
 # 3. The markdown table.
 md=$OUT.md
 {
-  echo "Command: \`scripts/bench_scaling.sh\` (CASES=\"$CASES\"${ARGS:+, ARGS=\"$ARGS\"}), default preset"
-  echo "(converged bounces), one bake at a time. $MACHINE."
+  echo "Command: \`scripts/bench_scaling.sh\`${ARGS:+ (ARGS=\"$ARGS\")}, default preset (converged bounces),"
+  echo "one bake at a time. $MACHINE."
   echo "Phase times are CPU seconds (user + system, all threads) of the bake process between its"
   echo "stage log lines; \"wall\" is the whole bake's wall-clock time; peak memory is the process's"
   echo "maximum resident set. Placement is the importance particles and the Poisson-disk levels;"
