@@ -73,3 +73,27 @@ impl SceneOptions {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn hash(options: SceneOptions) -> u64 {
+        let mut h = xxhash_rust::xxh3::Xxh3::new();
+        options.hash_into(&mut h);
+        h.digest()
+    }
+
+    /// The defaults add nothing to the content hash; every subdivision level is its own scene.
+    #[test]
+    fn subdivision_is_part_of_the_identity() {
+        let empty = xxhash_rust::xxh3::Xxh3::new().digest();
+        assert_eq!(hash(SceneOptions::default()), empty);
+        let with = |subdivide| SceneOptions {
+            subdivide,
+            ..SceneOptions::default()
+        };
+        let (one, two) = (hash(with(1)), hash(with(2)));
+        assert!(one != empty && two != empty && one != two);
+    }
+}
