@@ -141,7 +141,7 @@ done
 csv=$OUT.csv
 found=$(for c in $ALL_CASES; do echo "$c"; done
         for f in "$WORK"/*.json; do [[ -e $f ]] && basename "$f" .json; done)
-echo "case,scene,subdivide,triangles,levels,points,links,gather_rays,bounces,load_s,placement_s,refine_s,bounces_s,write_s,total_s,wall_s,cpu_s,placement_cpu_s,refine_cpu_s,bounces_cpu_s,peak_mb,bake_peak_mb,file_mb,threads" >"$csv"
+echo "case,scene,subdivide,triangles,levels,points,links,gather_rays,bounces,load_s,placement_s,refine_s,bounces_s,write_s,total_s,wall_s,cpu_s,placement_cpu_s,refine_cpu_s,bounces_cpu_s,receivers_refined,refine_cpu_ms_per_receiver,peak_mb,bake_peak_mb,file_mb,threads" >"$csv"
 seen=" "
 for c in $found; do
   [[ $seen == *" $c "* ]] && continue
@@ -164,7 +164,10 @@ for c in $found; do
      (.timings.candidates_s + .timings.poisson_s + .timings.rtrees_s | r(2)),
      (.transport.timings.refine_s | r(2)), (.transport.timings.bounces_s | r(2)),
      (.timings.write_s | r(2)), (.timings.total_s | r(2)), ($wall | tonumber | r(2)),
-     ($cpu | tonumber | r(2)), $phases, ($rss | tonumber),
+     ($cpu | tonumber | r(2)), $phases,
+     (.transport.stats.receivers_refined | add) as $n | $n,
+     ($phases | split(",")[1] | if . == "" then "" else tonumber * 1000 / $n | r(3) end),
+     ($rss | tonumber),
      (.transport.timings.peak_rss_bytes / 1e6 | r(1)), (.file_bytes / 1e6 | r(2)),
      .timings.threads] | map(tostring) | join(",")' "$j" >>"$csv"
 done
@@ -178,18 +181,20 @@ md=$OUT.md
   echo "Phase times are CPU seconds (user + system, all threads) of the bake process between its"
   echo "stage log lines; \"wall\" is the whole bake's wall-clock time; peak memory is the process's"
   echo "maximum resident set. Placement is the importance particles and the Poisson-disk levels;"
-  echo "the refinement of T is the gather of every refined receiver (Eq. 16-17, Fig. 5)."
+  echo "the refinement of T is the gather of every refined receiver (Eq. 16-17, Fig. 5), 256 rays"
+  echo "each (\"per refined receiver\": its CPU time over the refined receivers of all levels)."
   echo
-  echo "| case | triangles | receiver levels | points | links | gather rays | bounces | placement | refinement of T | bounces | total CPU | wall | peak memory | file |"
-  echo "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+  echo "| case | triangles | receiver levels | points | refined receivers | links | bounces | placement | refinement of T | per refined receiver | bounces | total CPU | wall | peak memory | file |"
+  echo "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
   tail -n +2 "$csv" | awk -F, '
     function n(x,   s, out) { s = sprintf("%d", x); out = "";
       while (length(s) > 3) { out = "," substr(s, length(s) - 2) out; s = substr(s, 1, length(s) - 3) }
       return s out }
     function t(x) { if (x == "") return "-";
       return x >= 60 ? sprintf("%d:%04.1f", int(x / 60), x - 60 * int(x / 60)) : sprintf("%.1f s", x) }
-    { printf "| %s | %s | %d | %s | %s | %s | %d | %s | %s | %s | %s | %s | %s MB | %.1f MB |\n",
-        $1, n($4), $5, n($6), n($7), n($8), $9, t($18), t($19), t($20), t($17), t($16), n($21), $23 }'
+    function ms(x) { return x == "" ? "-" : sprintf("%.2f ms", x) }
+    { printf "| %s | %s | %d | %s | %s | %s | %d | %s | %s | %s | %s | %s | %s | %s MB | %.1f MB |\n",
+        $1, n($4), $5, n($6), n($21), n($7), $9, t($18), t($19), ms($22), t($20), t($17), t($16), n($23), $25 }'
   bins=$(for c in $seen; do if [[ -s $WORK/$c.bin ]]; then echo "$(cat "$WORK/$c.bin"): $c"; fi; done |
          awk -F': ' '{b[$1] = b[$1] (b[$1] ? ", " : "") $2} END {for (k in b) print "- " k ": " b[k]}' | sort)
   if [[ -n $bins ]]; then
