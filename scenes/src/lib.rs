@@ -22,6 +22,7 @@ pub mod sampling;
 pub mod scene;
 pub mod scene_options;
 pub mod sphere_caster;
+pub mod subdivide;
 pub mod texture;
 
 pub use error::SceneError;

@@ -7,6 +7,7 @@
 //! viewpoint = [0.0, 1.0, 0.5]     # one interior point the point placement starts from
 //! textures = true                 # false: constant material colours, no texture maps
 //! normals = "vertex"              # or "face": geometric normals, not the mesh's
+//! subdivide = 0                   # N: split every triangle into 4 by its edge midpoints, N times
 //!
 //! [camera]
 //! position = [0.0, 1.0, 3.5]
@@ -40,6 +41,7 @@ use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
 use crate::error::SceneError;
+use crate::mesh::Mesh;
 use crate::obj::warn;
 use crate::scene::{Geometry, Scene};
 use crate::scene_options::{NormalSource, SceneOptions};
@@ -101,6 +103,8 @@ struct SceneSection {
     textures: bool,
     #[serde(default)]
     normals: NormalSource,
+    #[serde(default)]
+    subdivide: u32,
 }
 
 fn default_scale() -> f32 {
@@ -172,8 +176,17 @@ pub fn load_manifest(path: &Path) -> Result<Scene, SceneError> {
     let options = SceneOptions {
         textures: file.scene.textures,
         normals: file.scene.normals,
+        subdivide: file.scene.subdivide,
     };
+    if options.subdivide > crate::subdivide::MAX_LEVELS {
+        return Err(manifest_error(format!(
+            "[scene] subdivide = {} is more than {} (each level multiplies the triangles by 4)",
+            options.subdivide,
+            crate::subdivide::MAX_LEVELS
+        )));
+    }
     if let Geometry::Mesh(mesh) = &mut scene.geometry {
+        check_subdivided_size(path, mesh, options.subdivide)?;
         options.apply(mesh);
     }
 
@@ -184,6 +197,26 @@ pub fn load_manifest(path: &Path) -> Result<Scene, SceneError> {
     scene.content_hash = hasher.digest();
     scene.source = path.display().to_string();
     Ok(scene)
+}
+
+/// A subdivided mesh must keep its vertex indices in u32.
+fn check_subdivided_size(path: &Path, mesh: &Mesh, levels: u32) -> Result<(), SceneError> {
+    // Each level adds at most three vertices per triangle and multiplies the triangles by 4.
+    let mut triangles = mesh.triangles.len() as u64;
+    let mut vertices = mesh.positions.len() as u64;
+    for _ in 0..levels {
+        vertices += 3 * triangles;
+        triangles *= 4;
+    }
+    if vertices > u64::from(u32::MAX) {
+        return Err(SceneError::Manifest {
+            path: path.to_path_buf(),
+            message: format!(
+                "[scene] subdivide = {levels} makes {triangles} triangles, more vertices than 32-bit indices hold"
+            ),
+        });
+    }
+    Ok(())
 }
 
 /// Scales a loaded scene's geometry and positions (used for a built-in under a manifest

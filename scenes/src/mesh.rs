@@ -30,9 +30,11 @@ pub struct Material {
 #[derive(Clone, Debug, Default)]
 pub struct Mesh {
     pub positions: Vec<Vec3>,
-    /// Per-vertex shading normals, or empty. Unit length where present; a vertex whose
-    /// source normal was zero or non-finite holds [`Vec3::ZERO`] ("absent"), and triangles
-    /// touching it use the geometric normal.
+    /// Per-vertex shading normals, or empty. Unit length where present, except at the
+    /// midpoints [`crate::subdivide`] adds (the mean of two, which interpolates to the
+    /// source's shading: users normalise after interpolating); a vertex whose source normal
+    /// was zero or non-finite holds [`Vec3::ZERO`] ("absent"), and triangles touching it use
+    /// the geometric normal.
     pub normals: Vec<Vec3>,
     /// Per-vertex texture coordinates, or empty, in the convention of
     /// [`Texture::sample`] (`v = 0` at the top row of the image; the OBJ loader flips `v`).

@@ -2,9 +2,12 @@
 //! that do not read everything the source holds: `textures = false` keeps each material's
 //! constant colour (MTL `Kd`, glTF base colour factor) and ignores its texture map (MTL
 //! `map_Kd`, glTF base colour texture); `normals = "face"` shades with each triangle's
-//! geometric normal instead of the mesh's vertex normals. Both default to the source as it is.
-//! They are part of the scene's identity: [`SceneOptions::hash_into`] adds them to the
-//! content hash (nothing is added for the defaults, so a manifest without them keeps its hash).
+//! geometric normal instead of the mesh's vertex normals. `subdivide = N` splits every triangle
+//! into four by its edge midpoints, N times (`4^N` times the triangles, the same surface,
+//! materials and shading: [`crate::subdivide`]), for measuring how costs grow with the triangle
+//! count. All default to the source as it is. They are part of the scene's identity:
+//! [`SceneOptions::hash_into`] adds them to the content hash (nothing is added for the
+//! defaults, so a manifest without them keeps its hash).
 
 use serde::Deserialize;
 
@@ -27,6 +30,8 @@ pub struct SceneOptions {
     /// Whether texture maps modulate the materials' colours.
     pub textures: bool,
     pub normals: NormalSource,
+    /// Levels of 1-to-4 midpoint subdivision applied to the mesh (0: none).
+    pub subdivide: u32,
 }
 
 impl Default for SceneOptions {
@@ -34,6 +39,7 @@ impl Default for SceneOptions {
         SceneOptions {
             textures: true,
             normals: NormalSource::Vertex,
+            subdivide: 0,
         }
     }
 }
@@ -41,7 +47,8 @@ impl Default for SceneOptions {
 impl SceneOptions {
     /// Applies the options to `mesh`: without textures every material keeps its constant
     /// colour and the mesh holds no texture; with face normals the mesh holds no vertex
-    /// normals (triangles without them shade with their geometric normal).
+    /// normals (triangles without them shade with their geometric normal); then every
+    /// triangle is split `subdivide` times.
     pub fn apply(&self, mesh: &mut Mesh) {
         if !self.textures {
             mesh.materials.iter_mut().for_each(|m| m.texture = None);
@@ -50,6 +57,7 @@ impl SceneOptions {
         if self.normals == NormalSource::Face {
             mesh.normals.clear();
         }
+        crate::subdivide::subdivide(mesh, self.subdivide);
     }
 
     /// Adds the options that differ from the defaults to a content hash.
@@ -60,5 +68,32 @@ impl SceneOptions {
         if self.normals == NormalSource::Face {
             hasher.update(b"scene.normals=face");
         }
+        if self.subdivide != 0 {
+            hasher.update(format!("scene.subdivide={}", self.subdivide).as_bytes());
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn hash(options: SceneOptions) -> u64 {
+        let mut h = xxhash_rust::xxh3::Xxh3::new();
+        options.hash_into(&mut h);
+        h.digest()
+    }
+
+    /// The defaults add nothing to the content hash; every subdivision level is its own scene.
+    #[test]
+    fn subdivision_is_part_of_the_identity() {
+        let empty = xxhash_rust::xxh3::Xxh3::new().digest();
+        assert_eq!(hash(SceneOptions::default()), empty);
+        let with = |subdivide| SceneOptions {
+            subdivide,
+            ..SceneOptions::default()
+        };
+        let (one, two) = (hash(with(1)), hash(with(2)));
+        assert!(one != empty && two != empty && one != two);
     }
 }

@@ -330,3 +330,90 @@ fn textures_and_vertex_normals_can_be_turned_off() {
         .to_string();
     assert!(e.contains("bad.toml") && e.contains("smooth"), "{e}");
 }
+
+/// `[scene] subdivide = N` gives `4^N` times the triangles over the same bounds and area, the
+/// same hit (albedo from the texture, shading normal) at a point, and its own content hash;
+/// more levels than the limit are an error naming the file.
+#[test]
+fn subdivide_keeps_the_surface() {
+    let dir = TempDir::new("scenes-subdivide");
+    let mut png = Vec::new();
+    image::RgbImage::from_raw(2, 1, vec![255, 0, 0, 0, 0, 255])
+        .expect("size")
+        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .expect("png");
+    std::fs::write(dir.join("tex.png"), &png).expect("write png");
+    std::fs::write(dir.join("m.mtl"), "newmtl a\nKd 1 1 1\nmap_Kd tex.png\n").expect("mtl");
+    std::fs::write(
+        dir.join("q.obj"),
+        "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n\
+         vn 1 0 1\nvn 0 0 1\nusemtl a\nf 1/1/1 2/2/2 3/3/2 4/4/1\n",
+    )
+    .expect("obj");
+    let load = |name: &str, extra: &str| {
+        let path = dir.join(name);
+        std::fs::write(&path, format!("[scene]\nsource = \"q.obj\"\n{extra}")).expect("toml");
+        load_manifest(&path)
+    };
+    let area = |scene: &mlt_scenes::Scene| -> (usize, f64) {
+        let mlt_scenes::Geometry::Mesh(m) = &scene.geometry else {
+            panic!("a mesh")
+        };
+        let a = (0..m.triangles.len() as u32)
+            .map(|t| {
+                let [a, b, c] = m.corners(t);
+                0.5 * (b - a).cross(c - a).length() as f64
+            })
+            .sum();
+        (m.triangles.len(), a)
+    };
+    let probe = |scene: &mlt_scenes::Scene, x: f32| {
+        scene
+            .build_caster()
+            .intersect(Vec3::new(x, 0.3, 1.0), Vec3::NEG_Z, 0.0, 10.0)
+            .expect("hits the quad")
+    };
+    let source = load("source.toml", "").expect("source");
+    let (tris, a0) = area(&source);
+    assert_eq!(tris, 2);
+    let mut hashes = vec![source.content_hash];
+    for levels in 1..=2u32 {
+        let scene = load(
+            &format!("s{levels}.toml"),
+            &format!("subdivide = {levels}\n"),
+        )
+        .expect("subdivided");
+        let (n, a) = area(&scene);
+        assert_eq!(n, 2 * 4usize.pow(levels));
+        assert!((a - a0).abs() < 1e-6, "area {a} vs {a0}");
+        for x in [0.2f32, 0.8] {
+            let (want, got) = (probe(&source, x), probe(&scene, x));
+            let albedo_gap = (0..3).map(|k| (got.albedo[k] - want.albedo[k]).abs());
+            assert!(
+                albedo_gap.fold(0.0f32, f32::max) < 1e-4,
+                "x = {x}: {:?} vs {:?}",
+                got.albedo,
+                want.albedo
+            );
+            assert!(
+                (got.shading_normal - want.shading_normal).length() < 1e-5,
+                "{} vs {}",
+                got.shading_normal,
+                want.shading_normal
+            );
+            assert!((got.position - want.position).length() < 1e-6);
+        }
+        hashes.push(scene.content_hash);
+    }
+    assert!(
+        hashes[0] != hashes[1] && hashes[1] != hashes[2],
+        "{hashes:?}"
+    );
+    let e = load("too_many.toml", "subdivide = 9\n")
+        .expect_err("too many levels")
+        .to_string();
+    assert!(
+        e.contains("too_many.toml") && e.contains("subdivide"),
+        "{e}"
+    );
+}
