@@ -35,7 +35,9 @@
 //! are dropped while the sum of their norms stays within epsilon, the others are kept. The
 //! receiver's irradiance then changes by at most epsilon times the largest sender
 //! coefficient. Budget links do not queue children. Finer levels keep Fig. 5 alone (their
-//! differences carry gather noise whose norms add up without adding light).
+//! differences carry gather noise whose norms add up without adding light). Both parts are
+//! switched off by default ([`LEVEL0_BUDGET`], [`UPPER_DETAIL_LEVELS`]): each gains light on
+//! Sponza but adds artefacts on the Cornell box (their docs say which).
 //!
 //! Refinement also sums, under uniform emission at the coarsest senders, the single-bounce light
 //! of the links it drops against that of the links it keeps ([`RefineStats::dropped_share`]),
@@ -56,14 +58,24 @@ use crate::drop_estimate::applied;
 use crate::gather::{gather, link_distance, link_norm, GatherCounts, Scratch};
 use crate::sender_cells::SenderCells;
 
+/// Whether level-0 receivers keep the links the rules drop by the budget rule
+/// ([`keep_within_budget`]).
+///
+/// Off: the rule adds a tenth of the indirect light that textured Sponza lacked, but on the
+/// built-in Cornell box, with the light 5 mm under the ceiling, the level-0 links to finer
+/// senders put the hot spot's detail into level-0 functions, which show it as bright disks on
+/// the walls (per-pixel indirect error 0.37 against 0.17 without), and the finer levels do not
+/// correct it because budget links queue no children. It stays off until the rule also
+/// refines where it keeps.
+pub const LEVEL0_BUDGET: bool = false;
+
 /// Receiver levels `1..=UPPER_DETAIL_LEVELS` keep their links to coarsest senders by the
 /// budget rule ([`keep_within_budget`]) and carry bounces 2 and later (see `neumann`).
 ///
-/// 0: the budget rule applies to level 0 only. With 1, level-1 rows carry the higher bounces'
-/// detail and untextured Sponza's indirect light gains a few more points, but on the built-in
-/// Cornell box at the default level-0 count the hierarchical solution then has pixels darker
-/// than a quarter of their surface's neighbourhood (`view/tests/flat_basis.rs`), so the level-1
-/// rule stays off until that is understood.
+/// 0: off. With 1, level-1 rows carry the higher bounces' detail and untextured Sponza's
+/// indirect light gains several points, but on the built-in Cornell box at the default level-0
+/// count the hierarchical solution then has pixels darker than a quarter of their surface's
+/// neighbourhood (`view/tests/flat_basis.rs`).
 pub const UPPER_DETAIL_LEVELS: usize = 0;
 
 /// Receiver-major links of T: one row per processed receiver.
@@ -384,7 +396,7 @@ fn process(
         };
         if kept_by_rule {
             links.push((j, *v));
-        } else if norm > 0.0 && (level == 0 || (upper && j < sender_coarsest)) {
+        } else if norm > 0.0 && ((LEVEL0_BUDGET && level == 0) || (upper && j < sender_coarsest)) {
             small.push((j, norm));
         } else {
             lose(j, v);
