@@ -14,6 +14,8 @@ use anyhow::{anyhow, bail, Context, Result};
 use clap::Parser;
 use plotters::prelude::*;
 
+use mlt_plot::axes::{range, short};
+
 /// Plots error against run time from a sweep CSV.
 #[derive(Parser)]
 #[command(name = "plot_sweep", version)]
@@ -119,28 +121,6 @@ fn read_rows(path: &Path) -> Result<Vec<Row>> {
         bail!("{}: no data rows", path.display());
     }
     Ok(rows)
-}
-
-/// Log-axis range around positive values, padded by a factor.
-fn range(v: impl Iterator<Item = f64>) -> (f64, f64) {
-    let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
-    for x in v.filter(|x| *x > 0.0) {
-        lo = lo.min(x);
-        hi = hi.max(x);
-    }
-    if !lo.is_finite() {
-        return (1e-3, 1.0);
-    }
-    (lo / 1.6, hi * 1.6)
-}
-
-/// A tick label with at most three significant digits.
-fn short(v: f64) -> String {
-    if v == 0.0 || !v.is_finite() {
-        return format!("{v}");
-    }
-    let digits = (2 - v.abs().log10().floor() as i32).max(0) as usize;
-    format!("{v:.digits$}")
 }
 
 fn plot(rows: &[Row], x_of: fn(&Row) -> f64, x_label: &str, title: &str, out: &Path) -> Result<()> {

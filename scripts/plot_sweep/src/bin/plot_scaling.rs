@@ -17,6 +17,8 @@ use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
+use mlt_plot::axes::{range, short};
+
 /// Plots bake cost against triangles and receiver levels from a scaling CSV.
 #[derive(Parser)]
 #[command(name = "plot_scaling", version)]
@@ -138,28 +140,6 @@ fn read_rows(path: &Path) -> Result<Vec<Row>> {
         bail!("{}: no data rows", path.display());
     }
     Ok(rows)
-}
-
-/// Log-axis range around positive values, padded by a factor.
-fn range(v: impl Iterator<Item = f64>) -> (f64, f64) {
-    let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
-    for x in v.filter(|x| *x > 0.0) {
-        lo = lo.min(x);
-        hi = hi.max(x);
-    }
-    if !lo.is_finite() {
-        return (1e-3, 1.0);
-    }
-    (lo / 1.6, hi * 1.6)
-}
-
-/// A tick label with at most three significant digits.
-fn short(v: f64) -> String {
-    if v == 0.0 || !v.is_finite() {
-        return format!("{v}");
-    }
-    let digits = (2 - v.abs().log10().floor() as i32).max(0) as usize;
-    format!("{v:.digits$}")
 }
 
 /// One quantity drawn in a panel: its name, colour and value.

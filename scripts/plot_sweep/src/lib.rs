@@ -1,0 +1,3 @@
+//! Shared code of the plot binaries (`plot_sweep`, `plot_scaling`).
+
+pub mod axes;
