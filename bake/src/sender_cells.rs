@@ -233,15 +233,7 @@ impl<'a> SenderCells<'a> {
         let mut sum = 0.0f32;
         for &entry in &cell.list[start..end] {
             let node = (entry & 0xffff_ffff) as usize;
-            let lo = tree.node_min[node];
-            let hi = tree.node_max[node];
-            let inside = x[0] >= lo[0]
-                && x[0] <= hi[0]
-                && x[1] >= lo[1]
-                && x[1] <= hi[1]
-                && x[2] >= lo[2]
-                && x[2] <= hi[2];
-            if !inside {
+            if !tree.node_contains(node, x) {
                 continue;
             }
             let first = tree.node_first[node] as usize;

@@ -135,11 +135,28 @@ pub fn encode(sections: &[SectionIn<'_>], input_key: u64) -> Result<Vec<u8>, For
         out[o + 16..o + 24].copy_from_slice(&e.stored_len.to_le_bytes());
         out[o + 24..o + 32].copy_from_slice(&e.raw_len.to_le_bytes());
     }
-    let payload_hash = xxh3_64(&out[header_len..]);
-    out[32..40].copy_from_slice(&payload_hash.to_le_bytes());
-    let header_hash = xxh3_64(&out[..header_len]);
-    out[40..48].copy_from_slice(&header_hash.to_le_bytes());
+    reseal(&mut out);
     Ok(out)
+}
+
+/// Writes both checksums of a file image from its contents: the payload's (bytes
+/// `header_len..`) and the header's (with its own field zeroed). For `encode`, and for tools and
+/// tests that patch an image. Returns false, changing nothing, when the image is shorter than
+/// the fixed header or its header-length field does not fit the image.
+pub fn reseal(bytes: &mut [u8]) -> bool {
+    if bytes.len() < FIXED_HEADER {
+        return false;
+    }
+    let header_len = u32_at(bytes, 16) as usize;
+    if header_len < FIXED_HEADER || header_len > bytes.len() {
+        return false;
+    }
+    let payload_hash = xxh3_64(&bytes[header_len..]);
+    bytes[32..40].copy_from_slice(&payload_hash.to_le_bytes());
+    bytes[40..48].fill(0);
+    let header_hash = xxh3_64(&bytes[..header_len]);
+    bytes[40..48].copy_from_slice(&header_hash.to_le_bytes());
+    true
 }
 
 fn u16_at(b: &[u8], o: usize) -> u16 {

@@ -52,6 +52,19 @@ impl RTree {
     /// (a superset of the functions non-zero at `x`; the caller evaluates the weight).
     /// Allocation-free: a fixed stack of [`MAX_DEPTH`] entries, guaranteed enough by
     /// [`RTree::validate`] for trees read from files and by construction for built ones.
+    /// Whether `x` lies in the closed bounding box of `node`.
+    #[inline]
+    pub fn node_contains(&self, node: usize, x: [f32; 3]) -> bool {
+        let lo = self.node_min[node];
+        let hi = self.node_max[node];
+        x[0] >= lo[0]
+            && x[0] <= hi[0]
+            && x[1] >= lo[1]
+            && x[1] <= hi[1]
+            && x[2] >= lo[2]
+            && x[2] <= hi[2]
+    }
+
     #[inline]
     pub fn for_each_candidate(&self, x: [f32; 3], mut f: impl FnMut(u32)) {
         if self.node_count.is_empty() {
@@ -61,15 +74,7 @@ impl RTree {
         let mut sp = 0usize;
         let mut node = 0usize;
         loop {
-            let lo = self.node_min[node];
-            let hi = self.node_max[node];
-            let inside = x[0] >= lo[0]
-                && x[0] <= hi[0]
-                && x[1] >= lo[1]
-                && x[1] <= hi[1]
-                && x[2] >= lo[2]
-                && x[2] <= hi[2];
-            if inside {
+            if self.node_contains(node, x) {
                 let count = self.node_count[node] as usize;
                 if count > 0 {
                     let first = self.node_first[node] as usize;

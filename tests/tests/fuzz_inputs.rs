@@ -280,16 +280,9 @@ fn fix_checksums(v: &mut [u8]) {
     if v.len() < 64 {
         return;
     }
-    let header_len = u32::from_le_bytes([v[16], v[17], v[18], v[19]]) as usize;
     let len = v.len() as u64;
     v[24..32].copy_from_slice(&len.to_le_bytes());
-    if header_len <= v.len() && header_len >= 64 {
-        let payload = xxhash_rust::xxh3::xxh3_64(&v[header_len..]);
-        v[32..40].copy_from_slice(&payload.to_le_bytes());
-        v[40..48].fill(0);
-        let header = xxhash_rust::xxh3::xxh3_64(&v[..header_len]);
-        v[40..48].copy_from_slice(&header.to_le_bytes());
-    }
+    mlt_format::container::reseal(v);
 }
 
 /// Small bakes of built-in scenes, as files: basis only, with transport, compressed.

@@ -250,7 +250,22 @@ struct Tracer<'a> {
     opts: ReferenceOptions,
 }
 
-impl Tracer<'_> {
+impl<'a> Tracer<'a> {
+    /// A tracer of `caster` lit by `light`, once `opts` are checked.
+    fn new(
+        caster: &'a dyn RayCaster,
+        light: &'a Light,
+        opts: &ReferenceOptions,
+    ) -> Result<Tracer<'a>, ReferenceError> {
+        opts.check()?;
+        Ok(Tracer {
+            caster,
+            light,
+            eps: caster.ray_epsilon(),
+            opts: *opts,
+        })
+    }
+
     /// Direct irradiance at a surface point with shading normal `ns`, leaving on the side of
     /// the (ray-facing) geometric normal `ng`: the light model times one shadow ray.
     fn direct(&self, x: Vec3, ns: Vec3, ng: Vec3) -> [f32; 3] {
@@ -536,14 +551,8 @@ pub fn render_reference_with(
     light: &Light,
     opts: &ReferenceOptions,
 ) -> Result<ReferenceImages, ReferenceError> {
-    opts.check()?;
     let start = Instant::now();
-    let tracer = Tracer {
-        caster,
-        light,
-        eps: caster.ray_epsilon(),
-        opts: *opts,
-    };
+    let tracer = Tracer::new(caster, light, opts)?;
     let (w, h) = (camera.width, camera.height);
     let half = opts.spp / 2;
     // Per pixel: direct and indirect radiance of halves A and B.
@@ -691,13 +700,7 @@ pub fn reference_probes(
     probes: &[Probe],
     opts: &ReferenceOptions,
 ) -> Result<Vec<ProbeReference>, ReferenceError> {
-    opts.check()?;
-    let tracer = Tracer {
-        caster,
-        light,
-        eps: caster.ray_epsilon(),
-        opts: *opts,
-    };
+    let tracer = Tracer::new(caster, light, opts)?;
     let half = opts.spp / 2;
     Ok(probes
         .par_iter()
@@ -749,13 +752,7 @@ pub fn reference_vector_irradiance(
     points: &[Probe],
     opts: &ReferenceOptions,
 ) -> Result<(Vec<f32>, Vec<f32>), ReferenceError> {
-    opts.check()?;
-    let tracer = Tracer {
-        caster,
-        light,
-        eps: caster.ray_epsilon(),
-        opts: *opts,
-    };
+    let tracer = Tracer::new(caster, light, opts)?;
     let n_all = opts.spp as f64;
     let per_point: Vec<([f32; 9], f32)> = points
         .par_iter()
