@@ -10,13 +10,8 @@
 //!
 //! truncated below epsilon, except the links from coarsest senders to coarsest receivers, which
 //! are always kept (nothing coarser represents them; see `refine`). The paper computes bounces
-//! 2 and later on the coarsest receivers only; [`BounceReceivers::Coarsest`] computes them on
-//! the coarsest receivers and the receivers of levels `1..=UPPER_DETAIL_LEVELS`, whose rows of
-//! T are Eq. 17 differences, so that their products are the finer coefficients of bounce `b`
-//! (the coarsest level alone misses the higher bounces' detail where the level-0 points are
-//! not representative, e.g. in the open while enclosed places gather the bounces). Their links to coarsest senders below epsilon are kept by the budget rule
-//! (`refine::keep_within_budget`); their other links are truncated at epsilon. `S` adds every
-//! `X_b` to T's rows. Vector irradiance turns with the surface normal, so on curved
+//! 2 and later on the coarsest receivers only ([`BounceReceivers::Coarsest`]): `S` adds every
+//! `X_b` to T's level-0 rows. Vector irradiance turns with the surface normal, so on curved
 //! geometry the coarsest level alone reconstructs these bounces poorly (about 10 % low on a
 //! closed sphere of 24 level-0 points); [`BounceReceivers::All`] applies every refined row of T
 //! instead (`X_b = T Y_{b-1}`: finer rows of T are Eq. 17 differences, so their products are
@@ -29,7 +24,7 @@ use mlt_format::IndexedBasis;
 use rayon::prelude::*;
 
 use crate::gather::link_norm;
-use crate::refine::{keep_within_budget, ReceiverLinks, UPPER_DETAIL_LEVELS};
+use crate::refine::ReceiverLinks;
 
 /// One row of links: `(sender, value)`, ascending by sender.
 pub type Row = Vec<(u32, [f32; LINK_DIM])>;
@@ -41,7 +36,7 @@ pub type Rows = Vec<Row>;
 /// Which receivers bounces 2 and later are computed on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum BounceReceivers {
-    /// The coarsest level (the paper) and the upper detail levels (module docs).
+    /// The coarsest level only (the paper).
     Coarsest,
     /// Every receiver T was refined on.
     All,
@@ -145,10 +140,8 @@ pub fn series(
     mut on_bounce: impl FnMut(u32, usize),
 ) -> (Rows, SeriesReport) {
     let n0 = ib.basis.level_range(0).len();
-    let upper_end = ib.basis.level_offsets[(UPPER_DETAIL_LEVELS + 1).min(ib.levels())];
-    let upper_rows = t.rows.iter().take_while(|&&r| r < upper_end).count();
     let out_rows = match receivers {
-        BounceReceivers::Coarsest => upper_rows,
+        BounceReceivers::Coarsest => n0,
         BounceReceivers::All => t.rows.len(),
     };
     let mut report = SeriesReport {
@@ -165,10 +158,7 @@ pub fn series(
             .into_par_iter()
             .map_init(
                 || ProductScratch::new(senders),
-                |scratch, row_index| {
-                    let budget = row_index >= n0 && row_index < upper_rows;
-                    product_row(ib, t, &y, n0, epsilon, budget, scratch, row_index)
-                },
+                |scratch, row_index| product_row(ib, t, &y, n0, epsilon, scratch, row_index),
             )
             .collect();
         let rows = record_bounce(ib, n0, b, products, &mut report);
@@ -266,16 +256,13 @@ impl ProductScratch {
 }
 
 /// Row `row_index` of the next bounce, `X_b[i][s] = sum_j K[i][j] Y[j][s]`, truncated below
-/// `epsilon`; with `budget` (rows of the upper detail levels) the links below epsilon are
-/// kept by the budget rule instead ([`keep_within_budget`]). The scratch is left cleared.
-#[allow(clippy::too_many_arguments)]
+/// `epsilon` (the scratch is left cleared).
 fn product_row(
     ib: &IndexedBasis,
     t: &ReceiverLinks,
     y: &[Vec<(u32, [f32; 3])>],
     n0: usize,
     epsilon: f32,
-    budget: bool,
     scratch: &mut ProductScratch,
     row_index: usize,
 ) -> Product {
@@ -313,7 +300,6 @@ fn product_row(
     } else {
         [0.0; 3]
     };
-    let mut small: Vec<(u32, f32)> = Vec::new();
     for &s in touched.iter() {
         let v = acc[s as usize];
         let nrm = link_norm(&v);
@@ -325,16 +311,7 @@ fn product_row(
         let base = row_index < n0 && (s as usize) < n0 && nrm > 0.0;
         if nrm > epsilon || base {
             row.push((s, v));
-        } else if budget && nrm > 0.0 && (s as usize) < n0 {
-            small.push((s, nrm));
         }
-    }
-    let kept = keep_within_budget(&mut small, epsilon);
-    if kept > 0 {
-        row.extend(small[..kept].iter().map(|&(s, _)| (s, acc[s as usize])));
-        row.sort_unstable_by_key(|l| l.0);
-    }
-    for &s in touched.iter() {
         acc[s as usize] = [0.0; LINK_DIM];
         mark[s as usize] = false;
     }

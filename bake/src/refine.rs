@@ -24,21 +24,6 @@
 //! its links are full values (Eq. 17 subtracts nothing), so it gets the same rule, and it is
 //! queued even though no coarser receiver has it as a child.
 //!
-//! A second departure: **the budget rule on the upper receiver levels.** Fig. 5 tests each
-//! link on its own, but a receiver sees hundreds of senders whose links are each far below
-//! epsilon (a link is about `rho / (senders of its level seen)`) and together carry much of
-//! its light: the detail coefficients of the emission (finer senders, which carry the sharp
-//! direct light) at coarse receivers, and the Eq. 17 differences to coarsest senders at
-//! level-1 receivers (which also carry the higher bounces, see `neumann`). So on level 0
-//! (links to any sender) and on levels `1..=UPPER_DETAIL_LEVELS` (links to coarsest senders)
-//! the links the rules drop are candidates for [`keep_within_budget`]: the smallest
-//! are dropped while the sum of their norms stays within epsilon, the others are kept. The
-//! receiver's irradiance then changes by at most epsilon times the largest sender
-//! coefficient. Budget links do not queue children. Finer levels keep Fig. 5 alone (their
-//! differences carry gather noise whose norms add up without adding light). Both parts are
-//! switched off by default ([`LEVEL0_BUDGET`], [`UPPER_DETAIL_LEVELS`]): each gains light on
-//! Sponza but adds artefacts on the Cornell box (their docs say which).
-//!
 //! Refinement also sums, under uniform emission at the coarsest senders, the single-bounce light
 //! of the links it drops against that of the links it keeps ([`RefineStats::dropped_share`]),
 //! and per row the same under the file's light (`drop_estimate`, stored in the file).
@@ -57,26 +42,6 @@ use rayon::prelude::*;
 use crate::drop_estimate::applied;
 use crate::gather::{gather, link_distance, link_norm, GatherCounts, Scratch};
 use crate::sender_cells::SenderCells;
-
-/// Whether level-0 receivers keep the links the rules drop by the budget rule
-/// ([`keep_within_budget`]).
-///
-/// Off: the rule adds a tenth of the indirect light that textured Sponza lacked, but on the
-/// built-in Cornell box, with the light 5 mm under the ceiling, the level-0 links to finer
-/// senders put the hot spot's detail into level-0 functions, which show it as bright disks on
-/// the walls (per-pixel indirect error 0.37 against 0.17 without), and the finer levels do not
-/// correct it because budget links queue no children. It stays off until the rule also
-/// refines where it keeps.
-pub const LEVEL0_BUDGET: bool = false;
-
-/// Receiver levels `1..=UPPER_DETAIL_LEVELS` keep their links to coarsest senders by the
-/// budget rule ([`keep_within_budget`]) and carry bounces 2 and later (see `neumann`).
-///
-/// 0: off. With 1, level-1 rows carry the higher bounces' detail and untextured Sponza's
-/// indirect light gains several points, but on the built-in Cornell box at the default level-0
-/// count the hierarchical solution then has pixels darker than a quarter of their surface's
-/// neighbourhood (`view/tests/flat_basis.rs`).
-pub const UPPER_DETAIL_LEVELS: usize = 0;
 
 /// Receiver-major links of T: one row per processed receiver.
 #[derive(Clone, Debug, Default)]
@@ -375,11 +340,6 @@ fn process(
             }
         }
     };
-    // Links the rules drop on the upper detail levels: candidates for the budget rule.
-    // A switch that is 0 (off) today, which makes the comparison constant.
-    #[allow(clippy::absurd_extreme_comparisons)]
-    let upper = level <= UPPER_DETAIL_LEVELS;
-    let mut small: Vec<(u32, f32)> = Vec::new();
     for &j in &touched {
         let v = scratch.get(j);
         let norm = link_norm(v);
@@ -398,21 +358,9 @@ fn process(
         };
         if kept_by_rule {
             links.push((j, *v));
-        } else if norm > 0.0 && ((LEVEL0_BUDGET && level == 0) || (upper && j < sender_coarsest)) {
-            small.push((j, norm));
         } else {
             lose(j, v);
         }
-    }
-    let budget_kept = keep_within_budget(&mut small, eps);
-    for &(j, _) in &small[..budget_kept] {
-        links.push((j, *scratch.get(j)));
-    }
-    for &(j, _) in &small[budget_kept..] {
-        lose(j, scratch.get(j));
-    }
-    if budget_kept > 0 {
-        links.sort_unstable_by_key(|l| l.0);
     }
     scratch.touched = touched;
     let mut kept = [0.0f64; 3];
@@ -431,27 +379,4 @@ fn process(
         kept,
         gathered,
     }
-}
-
-/// The budget rule for a finer receiver's links to coarsest senders that are each below
-/// epsilon: they are differences from the coarser receivers' reconstruction (Eq. 17), and a
-/// receiver may have a hundred of them, each too small for Fig. 5's test but together a
-/// large share of its light. Dropping a set of links changes the receiver's irradiance by at
-/// most the sum of their norms times the largest coarsest-sender emission, so the smallest
-/// links are dropped while that sum stays within epsilon and the rest are kept. Sorts
-/// `small` (sender, norm) by descending norm (ties by sender: canonical) and returns how many
-/// leading entries to keep.
-pub fn keep_within_budget(small: &mut [(u32, f32)], eps: f32) -> usize {
-    let total: f64 = small.iter().map(|&(_, n)| n as f64).sum();
-    if total <= eps as f64 {
-        return 0;
-    }
-    small.sort_unstable_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
-    let mut dropped = total;
-    let mut keep = 0;
-    while keep < small.len() && dropped > eps as f64 {
-        dropped -= small[keep].1 as f64;
-        keep += 1;
-    }
-    keep
 }
