@@ -18,11 +18,30 @@
 //! about `rho / (number of coarse senders a receiver sees)`, well under the paper's
 //! epsilon = 0.025 in a closed room of 339 coarse points, so the literal rule would drop almost
 //! all of those links and with them most of the indirect light of a closed room. The level-0
-//! block costs at most `N_0^2` links (115k for 339 points, about 2 MB). Such forced links do
-//! not queue the receiver's children: refinement follows the
-//! paper's test alone. A finer receiver where no coarser level has support is such a base too:
-//! its links are full values (Eq. 17 subtracts nothing), so it gets the same rule, and it is
-//! queued even though no coarser receiver has it as a child.
+//! block costs at most `N_0^2` links (115k for 339 points, about 2 MB). A finer receiver where
+//! no coarser level has support is such a base too: its links to coarsest senders are full
+//! values (Eq. 17 subtracts nothing), so it gets the same rule (they do not queue its
+//! children), and it is queued even though no coarser receiver has it as a child.
+//!
+//! A second departure: **level 0 keeps every non-zero link, to finer senders too.** Fig. 5
+//! tests each link on its own, but a receiver sees thousands of finer senders whose links are
+//! each far below epsilon (a link is about `rho / (senders of its level seen)`) and together
+//! carry the emission's detail (the pull-push differences of section 3.3: a hot spot, the edge
+//! of a shadow). A coarsest receiver has no coarser level to represent what it drops, and its
+//! descendants test their own differences link by link, so without these links the detail
+//! reaches the receivers that see it from afar only through the coarse senders' averages: a
+//! tenth or more of a large room's indirect light was lost that way. A finer sender's support
+//! is small, so few gather rays hit it and its links are noisy; times a near light's large
+//! detail coefficient, that noise shows as bright disks of the coarse functions. Level-0
+//! receivers therefore gather with [`COARSE_GATHER_FACTOR`] times the rays (they are few: a
+//! fraction of a percent of the receivers), and a level-0 receiver with links queues its
+//! children, so that finer receivers correct what its wide function spreads.
+//!
+//! Finer levels keep Fig. 5 alone. Keeping level 1's sub-epsilon links to coarsest senders by
+//! a budget (drop the smallest while their norms sum to at most epsilon) gains more light on
+//! Sponza but leaves dark lines at contacts on the Cornell box: its corrections, computed at
+//! level-1 points, overshoot between them where the light changes fast, and level 2, which
+//! tests link by link, does not correct them.
 //!
 //! Refinement also sums, under uniform emission at the coarsest senders, the single-bounce light
 //! of the links it drops against that of the links it keeps ([`RefineStats::dropped_share`]),
@@ -42,6 +61,19 @@ use rayon::prelude::*;
 use crate::drop_estimate::applied;
 use crate::gather::{gather, link_distance, link_norm, GatherCounts, Scratch};
 use crate::sender_cells::SenderCells;
+
+/// Gather rays of a level-0 receiver as a multiple of the bake's `gather_rays`: it keeps links
+/// to small senders (module docs), whose noise falls with the rays, and level 0 is small.
+pub const COARSE_GATHER_FACTOR: u32 = 16;
+
+/// The gather rays of a receiver of `level` when the bake asks for `gather_rays`.
+pub fn gather_rays_at(level: usize, gather_rays: u32) -> u32 {
+    if level == 0 {
+        gather_rays.saturating_mul(COARSE_GATHER_FACTOR)
+    } else {
+        gather_rays
+    }
+}
 
 /// Receiver-major links of T: one row per processed receiver.
 #[derive(Clone, Debug, Default)]
@@ -306,7 +338,7 @@ fn process(
         caster,
         i,
         settings.sender_levels,
-        settings.gather_rays,
+        gather_rays_at(level, settings.gather_rays),
         settings.seed,
         eps_ray,
         scratch,
@@ -344,8 +376,9 @@ fn process(
         let v = scratch.get(j);
         let norm = link_norm(v);
         let kept_by_rule = if norm <= eps {
-            // The base block of the hierarchy (module docs): kept, without refining.
-            (level == 0 || !has_parent) && j < sender_coarsest && norm > 0.0
+            // The base of the hierarchy (module docs): kept. Every link of level 0; the
+            // links to coarsest senders of a finer receiver that no coarser level covers.
+            norm > 0.0 && (level == 0 || (!has_parent && j < sender_coarsest))
         } else {
             let keep = j < sender_coarsest
                 || neighbors
@@ -362,6 +395,8 @@ fn process(
             lose(j, v);
         }
     }
+    // A level-0 receiver's links below epsilon refine too (module docs).
+    refine |= level == 0 && !links.is_empty();
     scratch.touched = touched;
     let mut kept = [0.0f64; 3];
     for (j, v) in &links {

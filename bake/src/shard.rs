@@ -103,8 +103,8 @@ pub fn shard_section(
     params: mlt_format::meta::TransportParams,
     policy: BouncePolicy,
 ) -> ShardSection {
-    let rays_per_receiver = params.gather_rays as u64;
     let levels = ib.levels();
+    let gather_rays = params.gather_rays;
     let mut s = ShardSection {
         base_key,
         index,
@@ -131,7 +131,7 @@ pub fn shard_section(
         let l = ib.basis.level_of(r as usize);
         s.receivers_refined[l] += 1;
         s.t_links_per_level[l] += (e - a) as u64;
-        s.rays += rays_per_receiver;
+        s.rays += crate::refine::gather_rays_at(l, gather_rays) as u64;
         s.unsupported_hits += t.unsupported[row];
         s.rows.push(r);
         s.row_gathered.extend_from_slice(&t.gathered[row]);

@@ -174,10 +174,15 @@ fn transport_is_identical_with_one_and_two_threads_and_round_trips() {
         s.receivers_refined[0],
         a.contents.basis.basis.level_range(0).len() as u64
     );
-    assert_eq!(
-        s.visibility_rays,
-        128 * s.receivers_refined.iter().sum::<u64>()
-    );
+    // Level 0 gathers with more rays than the finer levels (`refine::gather_rays_at`).
+    let rays: u64 = s
+        .receivers_refined
+        .iter()
+        .enumerate()
+        .map(|(l, &n)| n * u64::from(mlt_bake::refine::gather_rays_at(l, 128)))
+        .sum();
+    assert_eq!(s.visibility_rays, rays);
+    assert!(mlt_bake::refine::gather_rays_at(0, 128) > mlt_bake::refine::gather_rays_at(1, 128));
     assert!(s.quantisation_error < 1e-3 * t.meta.params.epsilon.max(1.0));
 }
 
