@@ -32,17 +32,20 @@
 //! one register; the result then differs from other CPUs in the last bits, never between runs
 //! on one machine.
 //!
-//! The module is in three parts: `build` (rows from the basis, quantised, in blocks),
-//! `kernels` (the products) and, here, the operator and its public interface.
+//! The module is in four parts: `build` (rows from the basis, quantised, in blocks),
+//! `kernels` (the products), `sharpen` (the correction step applied to the flat coefficients
+//! after the product, [`SharpenOp`]) and, here, the operator and its public interface.
 
 mod build;
 mod kernels;
+mod sharpen;
 
 #[cfg(doc)]
 use mlt_format::flat_basis::FlatBasis;
 use rayon::prelude::*;
 
 pub use kernels::Kernel;
+pub use sharpen::{SharpenOp, SharpenScratch};
 
 /// Points per block of the parallel build and of the reordering pass.
 const BUILD_BLOCK: usize = 2048;
