@@ -194,16 +194,34 @@ impl FlattenOp {
         flat: &mut [f32],
         scratch: &mut FlattenScratch,
     ) {
+        self.apply_then(kernel, alpha, dim, flat, scratch, |_, _| {});
+    }
+
+    /// [`FlattenOp::apply_with`], then `post(first, rows)` on the computed rows of the points
+    /// `first..` (`dim` floats each), a task's rows at a time while they are still in cache
+    /// when the storage order is the point order, else once on all of `flat`.
+    pub(super) fn apply_then(
+        &self,
+        kernel: Kernel,
+        alpha: &[f32],
+        dim: usize,
+        flat: &mut [f32],
+        scratch: &mut FlattenScratch,
+        post: impl Fn(usize, &mut [f32]) + Sync,
+    ) {
         assert!(alpha.len() == self.hier_points * dim && flat.len() == self.points * dim);
         assert!(kernel.supported(), "this CPU cannot run {kernel:?}");
         if dim == 0 {
             return;
         }
         match dim {
-            1 => self.apply_n::<1>(kernel, alpha, flat, scratch),
-            3 => self.apply_n::<3>(kernel, alpha, flat, scratch),
-            9 => self.apply_n::<9>(kernel, alpha, flat, scratch),
-            _ => self.apply_dyn(alpha, dim, flat, scratch),
+            1 => self.apply_n::<1>(kernel, alpha, flat, scratch, post),
+            3 => self.apply_n::<3>(kernel, alpha, flat, scratch, post),
+            9 => self.apply_n::<9>(kernel, alpha, flat, scratch, post),
+            _ => {
+                self.apply_dyn(alpha, dim, flat, scratch);
+                post(0, flat);
+            }
         }
     }
 

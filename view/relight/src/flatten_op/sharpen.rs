@@ -16,9 +16,8 @@
 //! flat functions covering a flat point per row.
 
 use mlt_format::flat_basis::FlatBasis;
-use rayon::prelude::*;
 
-use super::{FlattenOp, FlattenScratch, BUILD_BLOCK};
+use super::{FlattenOp, FlattenScratch, Kernel};
 use crate::error::RelightError;
 
 /// The sharpening step `c' = (2I - W) c` of a flat basis.
@@ -31,7 +30,7 @@ pub struct SharpenOp {
 /// Buffers a [`SharpenOp::apply`] reuses from frame to frame.
 #[derive(Clone, Debug, Default)]
 pub struct SharpenScratch {
-    smoothed: Vec<f32>,
+    sharpened: Vec<f32>,
     flatten: FlattenScratch,
 }
 
@@ -68,23 +67,31 @@ impl SharpenOp {
         self.smoothing.bytes()
     }
 
-    /// Replaces the flat coefficients `flat` (`dim` floats per flat point) by `2 c - W c`.
-    /// Each value is computed in one fixed order, so the result is the same for any thread
-    /// count. Panics when `flat` is not `points * dim` long.
-    pub fn apply(&self, flat: &mut [f32], dim: usize, scratch: &mut SharpenScratch) {
+    /// Replaces the flat coefficients `flat` (`dim` floats per flat point) by `2 c - W c`
+    /// (computed into `scratch`, whose buffer is then swapped with `flat`); each row's
+    /// `2 c - W c` is formed as soon as its `W c` is, while it is in cache. Each value is
+    /// computed in one fixed order, so the result is the same for any thread count. Panics
+    /// when `flat` is not `points * dim` long.
+    pub fn apply(&self, flat: &mut Vec<f32>, dim: usize, scratch: &mut SharpenScratch) {
         if dim == 0 {
             return;
         }
-        scratch.smoothed.resize(flat.len(), 0.0);
-        self.smoothing
-            .apply(flat, dim, &mut scratch.smoothed, &mut scratch.flatten);
-        flat.par_chunks_mut(BUILD_BLOCK * dim)
-            .zip(scratch.smoothed.par_chunks(BUILD_BLOCK * dim))
-            .for_each(|(c, w)| {
-                for (c, w) in c.iter_mut().zip(w) {
-                    *c = 2.0 * *c - *w;
+        let SharpenScratch { sharpened, flatten } = scratch;
+        sharpened.resize(flat.len(), 0.0);
+        let c: &[f32] = flat;
+        self.smoothing.apply_then(
+            Kernel::detect(),
+            c,
+            dim,
+            sharpened,
+            flatten,
+            |first, rows| {
+                for (o, &own) in rows.iter_mut().zip(&c[first * dim..]) {
+                    *o = 2.0 * own - *o;
                 }
-            });
+            },
+        );
+        std::mem::swap(flat, sharpened);
     }
 }
 
