@@ -50,23 +50,6 @@ pub struct FlatCheck {
     pub exact: RgbImage,
 }
 
-/// One step of iterated Shepard correction of flat coefficients: `c' = c + (c - W c)`, where
-/// `(W c)_j` is the flat expansion evaluated at flat point `j`. Where the flat functions
-/// smooth the values they interpolate, this takes back most of that smoothing.
-pub fn sharpen(fb: &FlatBasis, flat: &[f32], dim: usize) -> Vec<f32> {
-    use rayon::prelude::*;
-    let b = &fb.ib.basis;
-    let mut out = vec![0.0f32; flat.len()];
-    out.par_chunks_mut(dim).enumerate().for_each(|(j, o)| {
-        let mut g = [0.0f32; 16];
-        fb.reconstruct(flat, dim, b.positions[j], b.normals[j], &mut g[..dim]);
-        for d in 0..dim {
-            o[d] = 2.0 * flat[j * dim + d] - g[d];
-        }
-    });
-    out
-}
-
 /// Relative RMS difference of the luminances of `a` from `reference`.
 pub fn rel_rmse(a: &RgbImage, reference: &RgbImage) -> f64 {
     let (mut num, mut den) = (0.0f64, 0.0f64);

@@ -45,7 +45,8 @@ impl FrameDriver<'_> {
         let Some(op) = self.relighter.flatten_operator() else {
             return Ok(None);
         };
-        let bytes = self.renderer.enable_gpu_flatten(self.gpu, op)?;
+        let sharpen = self.relighter.sharpen_operator();
+        let bytes = self.renderer.enable_gpu_flatten(self.gpu, op, sharpen)?;
         self.relighter.set_flatten_on_cpu(false);
         Ok(Some(bytes))
     }

@@ -17,7 +17,7 @@ use mlt_format::flat_basis::FlatBasis;
 use mlt_format::links::LINK_DIM;
 use mlt_format::pull_push::{project, ProjectionReport};
 use mlt_format::IndexedBasis;
-use mlt_relight::flatten_op::{FlattenOp, FlattenScratch};
+use mlt_relight::flatten_op::{FlattenOp, FlattenScratch, SharpenOp, SharpenScratch};
 use mlt_relight::{Frame, Light, Relight};
 use mlt_scenes::RayCaster;
 
@@ -87,13 +87,16 @@ pub fn oracle(
 
 /// A [`Relight`] whose frames are another relighter's (direct light, `e`) with the receiver
 /// coefficients replaced by the oracle's and flattened on the CPU by the viewer's sparse
-/// operator over every point (the bake's relighter keeps only points with links).
+/// operator over every point (the bake's relighter keeps only points with links), then
+/// sharpened as the bake's relighter does.
 pub struct OracleRelighter<'a> {
     inner: &'a mut dyn Relight,
     alpha: Vec<f32>,
     flat: FlatBasis,
     op: FlattenOp,
     scratch: FlattenScratch,
+    sharpen: SharpenOp,
+    sharpen_scratch: SharpenScratch,
     frame: Frame,
 }
 
@@ -107,12 +110,15 @@ impl<'a> OracleRelighter<'a> {
     ) -> Result<OracleRelighter<'a>, mlt_relight::RelightError> {
         let flat = FlatBasis::build(ib, None)?;
         let op = FlattenOp::build(ib, &flat, None)?;
+        let sharpen = SharpenOp::build(&flat)?;
         Ok(OracleRelighter {
             inner,
             alpha,
             flat,
             op,
             scratch: FlattenScratch::default(),
+            sharpen,
+            sharpen_scratch: SharpenScratch::default(),
             frame: Frame::default(),
         })
     }
@@ -130,6 +136,8 @@ impl Relight for OracleRelighter<'_> {
         frame.flat.resize(self.op.points() * LINK_DIM, 0.0);
         self.op
             .apply(&self.alpha, LINK_DIM, &mut frame.flat, &mut self.scratch);
+        self.sharpen
+            .apply(&mut frame.flat, LINK_DIM, &mut self.sharpen_scratch);
         self.frame = frame;
         &self.frame
     }

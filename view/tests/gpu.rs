@@ -474,7 +474,10 @@ fn gpu_flattening_equals_the_cpu_operator() {
     let fb = relighter.flat_basis().clone();
     let mut renderer = Renderer::new(&gpu, &GpuMesh::from_scene(&scene), &fb.ib.basis, 64).unwrap();
     let op = relighter.flatten_operator().unwrap();
-    renderer.enable_gpu_flatten(&gpu, op).unwrap();
+    // The flattening operator and the sharpening step after it, as the relighter does.
+    let sharpen = relighter.sharpen_operator();
+    assert!(sharpen.is_some());
+    renderer.enable_gpu_flatten(&gpu, op, sharpen).unwrap();
     renderer
         .set_hierarchical_coefficients(&gpu, &frame.i, true)
         .unwrap();

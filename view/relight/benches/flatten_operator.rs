@@ -5,7 +5,8 @@
 //! `cargo bench -p mlt-relight --bench flatten_operator`. The file is `MLT_BENCH_FILE` (else a
 //! small Cornell box baked into a temporary directory); `MLT_BENCH_ROUNDS` (default 9) rounds
 //! for the medians printed first; `MLT_BENCH_DROP=d1,d2,...` adds operators with those drop
-//! thresholds. Then divan times the products of the default operator.
+//! thresholds. Then divan times the products of the default operator and the sharpening step
+//! after it.
 
 mod common;
 
@@ -16,7 +17,9 @@ use common::Baked;
 use mlt_format::flat_basis::FlatBasis;
 use mlt_format::links::LINK_DIM;
 use mlt_relight::flatten_op::BLOCK_ROWS;
-use mlt_relight::{FlattenOp, FlattenOptions, FlattenScratch, Kernel, ReceiverLinks};
+use mlt_relight::{
+    FlattenOp, FlattenOptions, FlattenScratch, Kernel, ReceiverLinks, SharpenOp, SharpenScratch,
+};
 
 /// The file and what every benchmark reads from it.
 struct Setup {
@@ -32,6 +35,8 @@ struct Setup {
     rough: Vec<f32>,
     /// The default operator.
     op: FlattenOp,
+    /// The sharpening step after it.
+    sharpen: SharpenOp,
 }
 
 static SETUP: OnceLock<Setup> = OnceLock::new();
@@ -54,6 +59,15 @@ fn load() -> anyhow::Result<Setup> {
     let rough: Vec<f32> = (0..senders * 3).map(|k| 1.0 + (k % 7) as f32).collect();
     let flat = FlatBasis::build(ib, Some(&keep))?;
     let op = FlattenOp::build(ib, &flat, Some(&keep))?;
+    let t = Instant::now();
+    let sharpen = SharpenOp::build(&flat)?;
+    eprintln!(
+        "sharpening: build {:.0} ms, {} entries ({:.1} per flat point), {:.1} MB",
+        t.elapsed().as_secs_f64() * 1e3,
+        sharpen.entries(),
+        sharpen.entries() as f64 / flat.len().max(1) as f64,
+        sharpen.bytes() as f64 / 1e6
+    );
     Ok(Setup {
         baked,
         keep,
@@ -62,6 +76,7 @@ fn load() -> anyhow::Result<Setup> {
         smooth,
         rough,
         op,
+        sharpen,
     })
 }
 
@@ -241,4 +256,20 @@ fn flatten_avx2_fma(bencher: divan::Bencher) {
     if Kernel::Avx2Fma.supported() {
         flatten_with(bencher, Kernel::Avx2Fma);
     }
+}
+
+/// The sharpening step `c' = 2 c - W c` on the default operator's flat coefficients.
+#[divan::bench]
+fn sharpen(bencher: divan::Bencher) {
+    let s = setup();
+    let mut i = vec![0.0f32; s.baked.ib.basis.len() * LINK_DIM];
+    s.links.apply(&s.smooth, 0.0, &mut i);
+    let mut flat = vec![0.0f32; s.flat.len() * LINK_DIM];
+    s.op.apply(&i, LINK_DIM, &mut flat, &mut FlattenScratch::default());
+    let flat = flat;
+    let mut scratch = SharpenScratch::default();
+    // Each run from the same coefficients (repeated steps would grow without bound).
+    bencher
+        .with_inputs(|| flat.clone())
+        .bench_local_refs(|c| s.sharpen.apply(c, LINK_DIM, &mut scratch));
 }

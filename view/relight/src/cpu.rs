@@ -20,7 +20,8 @@
 //!    light is negligible;
 //! 4. flattening of `i` to the flat basis (section 4.1: one level on the points the solution
 //!    needs, [`FlatBasis`]) by a precomputed sparse operator ([`FlattenOp`], one row per flat
-//!    point) that holds only the columns of receivers with links.
+//!    point) that holds only the columns of receivers with links, then one sharpening step
+//!    `c' = 2 c - W c` ([`SharpenOp`]) that takes back most of the flat basis' smoothing.
 //!
 //! The operators are built once, in [`CpuRelighter::new`] (timed in [`LoadStats`]). When the
 //! light has not moved, nothing is recomputed.
@@ -37,7 +38,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::error::RelightError;
-use crate::flatten_op::{FlattenOp, FlattenScratch};
+use crate::flatten_op::{FlattenOp, FlattenScratch, SharpenOp, SharpenScratch};
 use crate::light::Light;
 use crate::pull_push_op::PullPushOp;
 use crate::receiver_links::ReceiverLinks;
@@ -61,6 +62,9 @@ pub struct LoadStats {
     pub flatten_columns: usize,
     pub flatten_entries: usize,
     pub flatten_bytes: usize,
+    /// Entries of the sharpening step's smoothing operator `W`, and its heap bytes.
+    pub sharpen_entries: usize,
+    pub sharpen_bytes: usize,
     /// Heap bytes of the precomputed pull-push.
     pub pull_push_bytes: usize,
     /// Heap bytes of the receiver-major decoded links.
@@ -90,6 +94,10 @@ pub struct CpuRelighter<'a> {
     /// [`FlatBasis::flatten`] runs.
     flatten_op: Option<FlattenOp>,
     flatten_scratch: FlattenScratch,
+    /// The sharpening step after flattening (`None` only if `W` is too large for 32-bit
+    /// offsets).
+    sharpen_op: Option<SharpenOp>,
+    sharpen_scratch: SharpenScratch,
     load: LoadStats,
     /// Senders whose largest direct channel is at most this fraction of the frame's largest
     /// are skipped in `i = S e`.
@@ -105,6 +113,9 @@ pub struct CpuRelighter<'a> {
     /// renderer's GPU compute pass applies [`CpuRelighter::flatten_op`] to `Frame::i`), and
     /// `Frame::flat` is empty.
     pub flatten_on_cpu: bool,
+    /// Sharpen the flat coefficients after flattening (step 4); off, they are the exact
+    /// values of Eq. 6 at the flat points, which the flat basis then smooths.
+    pub sharpen: bool,
     frame: Frame,
     last: Option<Light>,
 }
@@ -136,31 +147,35 @@ impl<'a> CpuRelighter<'a> {
         let t0 = Instant::now();
         let sender_levels = sender_levels.min(ib.levels());
         let flat_stored = stored.is_some();
-        let ((pull_push, receiver_links), (flat, flatten_op, flatten_build_ms)) = rayon::join(
-            || {
-                rayon::join(
-                    || PullPushOp::build(ib, sender_levels),
-                    || ReceiverLinks::build(links),
-                )
-            },
-            || {
-                let t = Instant::now();
-                // Only receivers with links can have a non-zero coefficient.
-                let keep = linked_flags(
-                    ib.basis.len(),
-                    links.receiver_ids.iter().map(|r| r.to_native()),
-                );
-                let flat = match stored {
-                    Some(flat) => Ok(flat),
-                    None => FlatBasis::build(ib, Some(&keep)),
-                };
-                let op = flat
-                    .as_ref()
-                    .ok()
-                    .and_then(|flat| FlattenOp::build(ib, flat, Some(&keep)).ok());
-                (flat, op, t.elapsed().as_secs_f64() * 1e3)
-            },
-        );
+        let ((pull_push, receiver_links), (flat, (flatten_op, sharpen_op), flatten_build_ms)) =
+            rayon::join(
+                || {
+                    rayon::join(
+                        || PullPushOp::build(ib, sender_levels),
+                        || ReceiverLinks::build(links),
+                    )
+                },
+                || {
+                    let t = Instant::now();
+                    // Only receivers with links can have a non-zero coefficient.
+                    let keep = linked_flags(
+                        ib.basis.len(),
+                        links.receiver_ids.iter().map(|r| r.to_native()),
+                    );
+                    let flat = match stored {
+                        Some(flat) => Ok(flat),
+                        None => FlatBasis::build(ib, Some(&keep)),
+                    };
+                    let ops = match flat.as_ref() {
+                        Ok(flat) => rayon::join(
+                            || FlattenOp::build(ib, flat, Some(&keep)).ok(),
+                            || SharpenOp::build(flat).ok(),
+                        ),
+                        Err(_) => (None, None),
+                    };
+                    (flat, ops, t.elapsed().as_secs_f64() * 1e3)
+                },
+            );
         let flat = flat?;
         let sample_used = pull_push.sample_used();
         let load = LoadStats {
@@ -172,6 +187,8 @@ impl<'a> CpuRelighter<'a> {
             flatten_columns: flatten_op.as_ref().map_or(0, FlattenOp::columns),
             flatten_entries: flatten_op.as_ref().map_or(0, FlattenOp::entries),
             flatten_bytes: flatten_op.as_ref().map_or(0, FlattenOp::bytes),
+            sharpen_entries: sharpen_op.as_ref().map_or(0, SharpenOp::entries),
+            sharpen_bytes: sharpen_op.as_ref().map_or(0, SharpenOp::bytes),
             pull_push_bytes: pull_push.bytes(),
             links_bytes: receiver_links.bytes(),
             direct_points: sample_used.iter().filter(|u| **u).count(),
@@ -190,11 +207,14 @@ impl<'a> CpuRelighter<'a> {
             flat,
             flatten_op,
             flatten_scratch: FlattenScratch::default(),
+            sharpen_op,
+            sharpen_scratch: SharpenScratch::default(),
             load,
             skip_fraction: 1e-4,
             adaptive_shadows: true,
             support_average: true,
             flatten_on_cpu: true,
+            sharpen: true,
             frame: Frame::default(),
             last: None,
         })
@@ -367,6 +387,10 @@ impl Relight for CpuRelighter<'_> {
         self.flatten_op.as_ref()
     }
 
+    fn sharpen_operator(&self) -> Option<&SharpenOp> {
+        self.sharpen_op.as_ref().filter(|_| self.sharpen)
+    }
+
     fn set_flatten_on_cpu(&mut self, on: bool) {
         self.flatten_on_cpu = on;
         // The next frame recomputes (its flat coefficients are wanted, or no longer).
@@ -413,6 +437,11 @@ impl Relight for CpuRelighter<'_> {
             Some(_) if !self.flatten_on_cpu => flat.clear(),
             Some(op) => op.apply(&i, LINK_DIM, &mut flat, &mut self.flatten_scratch),
             None => flat = self.flat.flatten(self.ib, &i, LINK_DIM),
+        }
+        if let Some(sharpen) = self.sharpen_op.as_ref().filter(|_| self.sharpen) {
+            if !flat.is_empty() {
+                sharpen.apply(&mut flat, LINK_DIM, &mut self.sharpen_scratch);
+            }
         }
         times.flatten_ms = t.elapsed().as_secs_f64() * 1e3;
 

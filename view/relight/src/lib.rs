@@ -27,7 +27,9 @@ pub mod support_average;
 
 pub use cpu::{CpuRelighter, LoadStats};
 pub use error::RelightError;
-pub use flatten_op::{FlattenOp, FlattenOptions, FlattenScratch, Kernel};
+pub use flatten_op::{
+    FlattenOp, FlattenOptions, FlattenScratch, Kernel, SharpenOp, SharpenScratch,
+};
 pub use light::{Light, LightError};
 pub use pull_push_op::PullPushOp;
 pub use receiver_links::ReceiverLinks;

@@ -5,7 +5,7 @@
 
 use serde::Serialize;
 
-use crate::flatten_op::FlattenOp;
+use crate::flatten_op::{FlattenOp, SharpenOp};
 use crate::light::Light;
 use mlt_format::flat_basis::FlatBasis;
 
@@ -56,6 +56,12 @@ pub trait Relight {
 
     /// The precomputed flattening operator, for a renderer that flattens on the GPU.
     fn flatten_operator(&self) -> Option<&FlattenOp> {
+        None
+    }
+
+    /// The sharpening step applied after the flattening operator (`c' = 2 c - W c`), for a
+    /// renderer that flattens on the GPU; `None` when the flat coefficients are not sharpened.
+    fn sharpen_operator(&self) -> Option<&SharpenOp> {
         None
     }
 

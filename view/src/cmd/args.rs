@@ -78,29 +78,48 @@ pub struct RelightArgs {
     /// surfaces next to the light).
     #[arg(long)]
     pub point_samples: bool,
+    /// Leave the flat coefficients as flattened (the exact values of Eq. 6 at the flat
+    /// points), without the sharpening step `c' = 2 c - W c` that takes back the flat basis'
+    /// smoothing.
+    #[arg(long)]
+    pub no_sharpen: bool,
     /// For experiments: build the flat basis with this neighbour count and radius factor
-    /// (`K,F`: each flat radius F times the distance to the K-th nearest flat point) instead
-    /// of reading the file's or building it by the default rule.
+    /// (`K,F`: each flat radius F times the distance to the K-th nearest flat point; `K,F,H,R`
+    /// also sets the hole weight and reach) instead of reading the file's or building it by
+    /// the default rule.
     #[arg(long, value_parser = parse_flat_rule)]
     pub flat_rule: Option<FlatRule>,
 }
 
-/// `K,F` for [`RelightArgs::flat_rule`].
+/// `K,F[,H,R]` for [`RelightArgs::flat_rule`].
 fn parse_flat_rule(s: &str) -> Result<FlatRule, String> {
-    let (k, f) = s
-        .split_once(',')
-        .ok_or_else(|| format!("expected K,F (e.g. 4,1.6), got {s}"))?;
-    let k: u32 = k.trim().parse().map_err(|e| format!("{k}: {e}"))?;
-    let f: f32 = f.trim().parse().map_err(|e| format!("{f}: {e}"))?;
+    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+    let [k, f, rest @ ..] = parts.as_slice() else {
+        return Err(format!("expected K,F (e.g. 4,1.35), got {s}"));
+    };
+    let k: u32 = k.parse().map_err(|e| format!("{k}: {e}"))?;
+    let f: f32 = f.parse().map_err(|e| format!("{f}: {e}"))?;
     let max = mlt_format::flat_basis::MAX_NEIGHBOURS as u32;
     if !((1..=max).contains(&k) && f > 0.0 && f.is_finite()) {
         return Err(format!("K must be 1 to {max} and F positive, got {s}"));
     }
-    Ok(FlatRule {
+    let mut rule = FlatRule {
         neighbours: k,
         radius_factor: f,
         ..FlatRule::current()
-    })
+    };
+    match rest {
+        [] => {}
+        [h, r] => {
+            rule.hole_weight = h.parse().map_err(|e| format!("{h}: {e}"))?;
+            rule.hole_reach = r.parse().map_err(|e| format!("{r}: {e}"))?;
+            if !(rule.hole_weight.is_finite() && rule.hole_reach > 0.0 && rule.hole_reach <= 1.0) {
+                return Err(format!("H must be finite and R in (0, 1], got {s}"));
+            }
+        }
+        _ => return Err(format!("expected K,F or K,F,H,R, got {s}")),
+    }
+    Ok(rule)
 }
 
 /// How the GPU renders.

@@ -1,7 +1,7 @@
-//! `view flat FILE [--width W --height H] [--json]`: the flat basis in the file's view (or
-//! the given camera), relit once with the file's light (or the given one): flat functions per
-//! surface pixel (mean, histogram, uncovered pixels) and the flat indirect image against the
-//! exact per-pixel evaluation of Eq. 6 (relative RMSE), on the CPU without a GPU.
+//! `view flat FILE [--width W --height H] [--json]`: the flat basis in the
+//! file's view (or the given camera), relit once with the file's light (or the given one): flat
+//! functions per surface pixel (mean, histogram, uncovered pixels) and the flat indirect image
+//! against the exact per-pixel evaluation of Eq. 6 (relative RMSE), on the CPU without a GPU.
 
 use anyhow::Result;
 use clap::Args;
@@ -19,26 +19,19 @@ pub struct FlatArgs {
     /// Print the figures as JSON instead of text.
     #[arg(long)]
     pub json: bool,
-    /// Sharpen the flat coefficients with one step of iterated Shepard correction first.
-    #[arg(long)]
-    pub sharpen: bool,
 }
 
 pub fn run(args: &FlatArgs) -> Result<()> {
     with_viewing(&args.baked, |mut v| {
         let frame = v.relighter.relight(&v.light).clone();
         let fb = v.relighter.flat_basis();
-        let flat = if args.sharpen {
-            mlt_view::flat_check::sharpen(fb, &frame.flat, mlt_format::links::LINK_DIM)
-        } else {
-            frame.flat.clone()
-        };
-        let check = FlatCheck::measure(v.ib, &frame.i, fb, &flat, &v.camera, v.caster);
+        let check = FlatCheck::measure(v.ib, &frame.i, fb, &frame.flat, &v.camera, v.caster);
         if args.json {
             let mut json = serde_json::to_value(&check)?;
             json["darker"] = serde_json::json!(check.darker.len());
             json["file"] = serde_json::json!(v.path.display().to_string());
             json["flat_stored"] = serde_json::json!(v.relighter.load_stats().flat_stored);
+            json["sharpened"] = serde_json::json!(v.relighter.sharpen);
             println!("{}", serde_json::to_string_pretty(&json)?);
         } else {
             print!("{}", check.summary());

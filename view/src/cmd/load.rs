@@ -91,6 +91,7 @@ pub fn with_viewing<T>(args: &BakedArgs, f: impl FnOnce(Viewing<'_>) -> Result<T
     .context("building the relighting operators")?;
     relighter.adaptive_shadows = !relight.all_shadow_rays;
     relighter.support_average = !relight.point_samples;
+    relighter.sharpen = !relight.no_sharpen;
     if relighter.support_average {
         relighter.build_support_tables();
     }

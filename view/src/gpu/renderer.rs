@@ -12,7 +12,7 @@ use std::time::Instant;
 use glam::{Mat4, Vec3};
 use mlt_format::links::LINK_DIM;
 use mlt_format::{Basis, IndexedBasis};
-use mlt_relight::{FlattenOp, Light};
+use mlt_relight::{FlattenOp, Light, SharpenOp};
 use serde::Serialize;
 
 use super::context::{Gpu, GpuError};
@@ -159,10 +159,16 @@ impl Renderer {
         }
     }
 
-    /// Moves flattening to the GPU: uploads the precomputed operator once; afterwards
+    /// Moves flattening to the GPU: uploads the precomputed operator (and the sharpening step
+    /// after it, if any) once; afterwards
     /// [`Renderer::set_hierarchical_coefficients`] replaces [`Renderer::set_coefficients`].
     /// Returns the bytes uploaded.
-    pub fn enable_gpu_flatten(&mut self, gpu: &Gpu, op: &FlattenOp) -> Result<u64, GpuError> {
+    pub fn enable_gpu_flatten(
+        &mut self,
+        gpu: &Gpu,
+        op: &FlattenOp,
+        sharpen: Option<&SharpenOp>,
+    ) -> Result<u64, GpuError> {
         if op.points() != self.point_count {
             return Err(GpuError::Validation(format!(
                 "flattening operator for {} points, basis of {}",
@@ -170,7 +176,7 @@ impl Renderer {
                 self.point_count
             )));
         }
-        let f = GpuFlatten::new(gpu, op, &self.scene.coefficients)?;
+        let f = GpuFlatten::new(gpu, op, sharpen, &self.scene.coefficients)?;
         let bytes = f.bytes;
         self.gpu_flatten = Some(f);
         Ok(bytes)

@@ -56,13 +56,15 @@ fn as_rows9<const D: usize>(out: &mut [[f32; D]]) -> Option<&mut [[f32; 9]]> {
 impl FlattenOp {
     /// `flat = F alpha` with `D` floats per point and `kernel`: tasks of [`TASK_BLOCKS`]
     /// blocks in parallel, writing the rows in place when the storage order is the point
-    /// order, else into `scratch` and then to their points.
+    /// order, else into `scratch` and then to their points; then `post` (see
+    /// [`FlattenOp::apply_then`]).
     pub(super) fn apply_n<const D: usize>(
         &self,
         kernel: Kernel,
         alpha: &[f32],
         flat: &mut [f32],
         scratch: &mut FlattenScratch,
+        post: impl Fn(usize, &mut [f32]) + Sync,
     ) {
         let rows: &mut [f32] = if self.identity {
             flat
@@ -90,9 +92,13 @@ impl FlattenOp {
                         }
                     }
                 }
+                if self.identity {
+                    post(first * BLOCK_ROWS, out.as_flattened_mut());
+                }
             });
         if !self.identity {
             self.scatter(D, flat, scratch);
+            post(0, flat);
         }
     }
 

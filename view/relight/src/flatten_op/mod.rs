@@ -32,17 +32,20 @@
 //! one register; the result then differs from other CPUs in the last bits, never between runs
 //! on one machine.
 //!
-//! The module is in three parts: `build` (rows from the basis, quantised, in blocks),
-//! `kernels` (the products) and, here, the operator and its public interface.
+//! The module is in four parts: `build` (rows from the basis, quantised, in blocks),
+//! `kernels` (the products), `sharpen` (the correction step applied to the flat coefficients
+//! after the product, [`SharpenOp`]) and, here, the operator and its public interface.
 
 mod build;
 mod kernels;
+mod sharpen;
 
 #[cfg(doc)]
 use mlt_format::flat_basis::FlatBasis;
 use rayon::prelude::*;
 
 pub use kernels::Kernel;
+pub use sharpen::{SharpenOp, SharpenScratch};
 
 /// Points per block of the parallel build and of the reordering pass.
 const BUILD_BLOCK: usize = 2048;
@@ -191,16 +194,34 @@ impl FlattenOp {
         flat: &mut [f32],
         scratch: &mut FlattenScratch,
     ) {
+        self.apply_then(kernel, alpha, dim, flat, scratch, |_, _| {});
+    }
+
+    /// [`FlattenOp::apply_with`], then `post(first, rows)` on the computed rows of the points
+    /// `first..` (`dim` floats each), a task's rows at a time while they are still in cache
+    /// when the storage order is the point order, else once on all of `flat`.
+    pub(super) fn apply_then(
+        &self,
+        kernel: Kernel,
+        alpha: &[f32],
+        dim: usize,
+        flat: &mut [f32],
+        scratch: &mut FlattenScratch,
+        post: impl Fn(usize, &mut [f32]) + Sync,
+    ) {
         assert!(alpha.len() == self.hier_points * dim && flat.len() == self.points * dim);
         assert!(kernel.supported(), "this CPU cannot run {kernel:?}");
         if dim == 0 {
             return;
         }
         match dim {
-            1 => self.apply_n::<1>(kernel, alpha, flat, scratch),
-            3 => self.apply_n::<3>(kernel, alpha, flat, scratch),
-            9 => self.apply_n::<9>(kernel, alpha, flat, scratch),
-            _ => self.apply_dyn(alpha, dim, flat, scratch),
+            1 => self.apply_n::<1>(kernel, alpha, flat, scratch, post),
+            3 => self.apply_n::<3>(kernel, alpha, flat, scratch, post),
+            9 => self.apply_n::<9>(kernel, alpha, flat, scratch, post),
+            _ => {
+                self.apply_dyn(alpha, dim, flat, scratch);
+                post(0, flat);
+            }
         }
     }
 

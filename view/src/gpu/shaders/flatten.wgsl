@@ -1,12 +1,16 @@
 // Flattening on the GPU (section 4.1): the precomputed sparse operator of
 // the relighting crate's flatten_op applied to the hierarchical coefficients `i`, one invocation per
 // flat point, each row summed in its stored order. An entry packs the block-local column (low
-// 16 bits) and the value as a fraction of `counts.w` (high 16 bits).
+// 16 bits) and the value as a fraction of `counts.w` (high 16 bits). The same shader runs the
+// sharpening step after it (`mode.x` = 1): the operator is then the flat basis' smoothing `W`,
+// `hier` holds the flat coefficients `c` of the first pass and the output is `2 c - W c`.
 
 struct Params {
     // x: number of points; y: invocations per row of the dispatch grid; z: rows per block;
     // w: the values' fixed-point scale.
     counts: vec4<u32>,
+    // x: 0 writes the row's sum; 1 writes twice the point's own input minus the row's sum.
+    mode: vec4<u32>,
 };
 
 @group(0) @binding(0) var<storage, read> offsets: array<u32>;
@@ -40,7 +44,13 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
         }
     }
     let j = order[pos] * 9u;
-    for (var d = 0u; d < 9u; d++) {
-        flat[j + d] = acc[d];
+    if params.mode.x == 1u {
+        for (var d = 0u; d < 9u; d++) {
+            flat[j + d] = 2.0 * hier[j + d] - acc[d];
+        }
+    } else {
+        for (var d = 0u; d < 9u; d++) {
+            flat[j + d] = acc[d];
+        }
     }
 }
