@@ -8,6 +8,7 @@
 //! textures = true                 # false: constant material colours, no texture maps
 //! normals = "vertex"              # or "face": geometric normals, not the mesh's
 //! subdivide = 0                   # N: split every triangle into 4 by its edge midpoints, N times
+//! albedo_max = 0.95                # optional: scale every albedo so that the largest channel is this
 //!
 //! [camera]
 //! position = [0.0, 1.0, 3.5]
@@ -105,6 +106,7 @@ struct SceneSection {
     normals: NormalSource,
     #[serde(default)]
     subdivide: u32,
+    albedo_max: Option<f32>,
 }
 
 fn default_scale() -> f32 {
@@ -177,7 +179,15 @@ pub fn load_manifest(path: &Path) -> Result<Scene, SceneError> {
         textures: file.scene.textures,
         normals: file.scene.normals,
         subdivide: file.scene.subdivide,
+        albedo_max: file.scene.albedo_max,
     };
+    if let Some(a) = options.albedo_max {
+        if !(a > 0.0 && a < 1.0) {
+            return Err(manifest_error(format!(
+                "[scene] albedo_max must be in (0, 1) (energy must be lost at each bounce), got {a}"
+            )));
+        }
+    }
     if options.subdivide > crate::subdivide::MAX_LEVELS {
         return Err(manifest_error(format!(
             "[scene] subdivide = {} is more than {} (each level multiplies the triangles by 4)",

@@ -417,3 +417,36 @@ fn subdivide_keeps_the_surface() {
         "{e}"
     );
 }
+
+/// `albedo_max` scales the built-in Cornell box so that its brightest channel is the target,
+/// changes the scene's identity, and a value that would not lose energy is refused with the
+/// file named.
+#[test]
+fn albedo_max_brightens_the_whole_scene_and_is_checked() {
+    let largest = |scene: &mlt_scenes::Scene| {
+        let mlt_scenes::Geometry::Mesh(m) = &scene.geometry else {
+            panic!("a mesh")
+        };
+        mlt_scenes::scene_options::largest_albedo(m)
+    };
+    let (_d, plain) = setup("albedo-plain", "[scene]\nsource = \"builtin:cornell\"\n");
+    let (_e, bright) = setup(
+        "albedo-bright",
+        "[scene]\nsource = \"builtin:cornell\"\nalbedo_max = 0.95\n",
+    );
+    let (plain, bright) = (
+        load_manifest(&plain).unwrap(),
+        load_manifest(&bright).unwrap(),
+    );
+    assert!(largest(&plain) < 0.9, "{}", largest(&plain));
+    assert!((largest(&bright) - 0.95).abs() < 1e-6);
+    assert_ne!(plain.content_hash, bright.content_hash);
+    for bad in ["1.0", "0.0", "-0.5", "nan"] {
+        let (_f, path) = setup(
+            "albedo-bad",
+            &format!("[scene]\nsource = \"builtin:cornell\"\nalbedo_max = {bad}\n"),
+        );
+        let e = load_manifest(&path).expect_err(bad).to_string();
+        assert!(e.contains("albedo_max") && e.contains(".toml"), "{e}");
+    }
+}
