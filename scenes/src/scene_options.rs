@@ -156,8 +156,8 @@ mod tests {
         assert!((largest_albedo(&mesh) - 0.95).abs() < 1e-6);
         let f = 0.95 / largest;
         for (m, b) in mesh.materials.iter().zip(&before) {
-            for c in 0..3 {
-                assert!((m.albedo[c] - b[c] * f).abs() < 1e-6);
+            for (got, was) in m.albedo.iter().zip(b) {
+                assert!((got - was * f).abs() < 1e-6);
             }
         }
         // A texture's largest texel counts: a material at 0.5 over texels up to 0.8 is 0.4.
