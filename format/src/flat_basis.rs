@@ -520,18 +520,22 @@ mod tests {
         assert!(mean <= 12.0, "mean coverage {mean}");
     }
 
+    /// Links on level 0 and on the finest level (3) in the left half only: fine points there,
+    /// coarse ones elsewhere, and a seam between them.
+    fn left_half_fine(ib: &IndexedBasis) -> Vec<bool> {
+        let fine = ib.basis.level_range(3);
+        (0..ib.basis.len())
+            .map(|k| {
+                ib.basis.level_of(k) == 0 || (fine.contains(&k) && ib.basis.positions[k][0] < 0.5)
+            })
+            .collect()
+    }
+
     #[test]
     fn every_hierarchical_point_is_covered_where_fine_and_coarse_regions_meet() {
         let ib = plane_basis(4, 3);
         let n = ib.basis.len();
-        // Links on the finest level in the left half only: fine points there, coarse ones
-        // elsewhere, and a seam between them.
-        let fine = ib.basis.level_range(3);
-        let linked: Vec<bool> = (0..n)
-            .map(|k| {
-                ib.basis.level_of(k) == 0 || (fine.contains(&k) && ib.basis.positions[k][0] < 0.5)
-            })
-            .collect();
+        let linked = left_half_fine(&ib);
         let fb = FlatBasis::build(&ib, Some(&linked)).unwrap();
         assert!(fb.len() < n);
         for j in 0..n {
@@ -547,13 +551,7 @@ mod tests {
         // hierarchical functions still cover it. (On this plane the density radii alone
         // cover the strip; the probes matter where several levels' points crowd a rim.)
         let ib = plane_basis(4, 3);
-        let n = ib.basis.len();
-        let fine = ib.basis.level_range(3);
-        let linked: Vec<bool> = (0..n)
-            .map(|k| {
-                ib.basis.level_of(k) == 0 || (fine.contains(&k) && ib.basis.positions[k][0] < 0.5)
-            })
-            .collect();
+        let linked = left_half_fine(&ib);
         let fb = FlatBasis::build(&ib, Some(&linked)).unwrap();
         let nn = [0.0, 0.0, 1.0];
         for iy in 0..=100 {
