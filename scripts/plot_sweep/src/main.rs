@@ -7,14 +7,14 @@
 //! Text is drawn with ab_glyph from a TrueType font file (`--font`, default DejaVu Sans from
 //! the usual system path); no fontconfig or freetype is needed.
 
-use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{anyhow, Context, Result};
 use clap::Parser;
 use plotters::prelude::*;
 
 use mlt_plot::axes::{range, short};
+use mlt_plot::table::Table;
 
 /// Plots error against run time from a sweep CSV.
 #[derive(Parser)]
@@ -49,78 +49,21 @@ struct Row {
 }
 
 fn read_rows(path: &Path) -> Result<Vec<Row>> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let mut lines = text.lines().filter(|l| !l.trim().is_empty());
-    let header: Vec<&str> = lines
-        .next()
-        .ok_or_else(|| anyhow!("{}: empty", path.display()))?
-        .split(',')
-        .map(str::trim)
-        .collect();
-    let col: HashMap<&str, usize> = header.iter().enumerate().map(|(i, h)| (*h, i)).collect();
-    let need = |name: &str| -> Result<usize> {
-        col.get(name)
-            .copied()
-            .ok_or_else(|| anyhow!("{}: no column {name}", path.display()))
-    };
-    let c = [
-        need("label")?,
-        need("paper")?,
-        need("bake_s")?,
-        need("frame_ms")?,
-        need("indirect_rel_rmse")?,
-        need("final_rel_rmse")?,
-        need("noise_indirect_rel_rmse")?,
-        need("noise_final_rel_rmse")?,
-    ];
-    let mut rows = Vec::new();
-    for (k, line) in lines.enumerate() {
-        let f: Vec<&str> = line.split(',').map(str::trim).collect();
-        if f.len() != header.len() {
-            bail!(
-                "{}: data row {} has {} fields, the header {}",
-                path.display(),
-                k + 1,
-                f.len(),
-                header.len()
-            );
-        }
-        let num = |i: usize| -> Result<f64> {
-            let v: f64 = f[i].parse().with_context(|| {
-                format!(
-                    "{}: data row {}, column {}: '{}' is not a number",
-                    path.display(),
-                    k + 1,
-                    header[i],
-                    f[i]
-                )
-            })?;
-            if !v.is_finite() {
-                bail!(
-                    "{}: data row {}, column {} is not finite",
-                    path.display(),
-                    k + 1,
-                    header[i]
-                );
-            }
-            Ok(v)
-        };
-        rows.push(Row {
-            label: f[c[0]].to_string(),
-            paper: num(c[1])? != 0.0,
-            bake_s: num(c[2])?,
-            frame_ms: num(c[3])?,
-            indirect: num(c[4])?,
-            final_: num(c[5])?,
-            noise_indirect: num(c[6])?,
-            noise_final: num(c[7])?,
-        });
-    }
-    if rows.is_empty() {
-        bail!("{}: no data rows", path.display());
-    }
-    Ok(rows)
+    let t = Table::read(path)?;
+    (0..t.rows.len())
+        .map(|r| {
+            Ok(Row {
+                label: t.get(r, "label")?.to_string(),
+                paper: t.num(r, "paper")? != 0.0,
+                bake_s: t.num(r, "bake_s")?,
+                frame_ms: t.num(r, "frame_ms")?,
+                indirect: t.num(r, "indirect_rel_rmse")?,
+                final_: t.num(r, "final_rel_rmse")?,
+                noise_indirect: t.num(r, "noise_indirect_rel_rmse")?,
+                noise_final: t.num(r, "noise_final_rel_rmse")?,
+            })
+        })
+        .collect()
 }
 
 fn plot(rows: &[Row], x_of: fn(&Row) -> f64, x_label: &str, title: &str, out: &Path) -> Result<()> {

@@ -8,16 +8,16 @@
 //! Text is drawn with ab_glyph from a TrueType font file (`--font`, default DejaVu Sans from
 //! the usual system path); no fontconfig or freetype is needed.
 
-use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{anyhow, Context, Result};
 use clap::Parser;
 use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use mlt_plot::axes::{range, short};
+use mlt_plot::table::Table;
 
 /// Plots bake cost against triangles and receiver levels from a scaling CSV.
 #[derive(Parser)]
@@ -54,92 +54,25 @@ struct Row {
     file_mb: f64,
 }
 
-/// The CSV's columns by name.
-struct Columns<'a> {
-    index: HashMap<&'a str, usize>,
-    path: &'a Path,
-}
-
-impl Columns<'_> {
-    fn get<'f>(&self, fields: &[&'f str], name: &str) -> Result<&'f str> {
-        let i = *self
-            .index
-            .get(name)
-            .ok_or_else(|| anyhow!("{}: no column {name}", self.path.display()))?;
-        Ok(fields[i])
-    }
-
-    /// A number, or NaN where the field is empty.
-    fn optional(&self, fields: &[&str], name: &str, row: usize) -> Result<f64> {
-        if self.get(fields, name)?.is_empty() {
-            Ok(f64::NAN)
-        } else {
-            self.num(fields, name, row)
-        }
-    }
-
-    fn num(&self, fields: &[&str], name: &str, row: usize) -> Result<f64> {
-        let text = self.get(fields, name)?;
-        let v: f64 = text.parse().with_context(|| {
-            format!(
-                "{}: data row {row}, column {name}: '{text}' is not a number",
-                self.path.display()
-            )
-        })?;
-        if !v.is_finite() {
-            bail!(
-                "{}: data row {row}, column {name} is not finite",
-                self.path.display()
-            );
-        }
-        Ok(v)
-    }
-}
-
 fn read_rows(path: &Path) -> Result<Vec<Row>> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let mut lines = text.lines().filter(|l| !l.trim().is_empty());
-    let header: Vec<&str> = lines
-        .next()
-        .ok_or_else(|| anyhow!("{}: empty", path.display()))?
-        .split(',')
-        .map(str::trim)
-        .collect();
-    let cols = Columns {
-        index: header.iter().enumerate().map(|(i, h)| (*h, i)).collect(),
-        path,
-    };
-    let mut rows = Vec::new();
-    for (k, line) in lines.enumerate() {
-        let f: Vec<&str> = line.split(',').map(str::trim).collect();
-        let row = k + 1;
-        if f.len() != header.len() {
-            bail!(
-                "{}: data row {row} has {} fields, the header {}",
-                path.display(),
-                f.len(),
-                header.len()
-            );
-        }
-        rows.push(Row {
-            scene: cols.get(&f, "scene")?.to_string(),
-            subdivide: cols.num(&f, "subdivide", row)? as u32,
-            triangles: cols.num(&f, "triangles", row)?,
-            levels: cols.num(&f, "levels", row)? as u32,
-            placement_cpu_s: cols.optional(&f, "placement_cpu_s", row)?,
-            refine_cpu_s: cols.optional(&f, "refine_cpu_s", row)?,
-            bounces_cpu_s: cols.optional(&f, "bounces_cpu_s", row)?,
-            wall_s: cols.num(&f, "wall_s", row)?,
-            cpu_s: cols.num(&f, "cpu_s", row)?,
-            peak_mb: cols.num(&f, "peak_mb", row)?,
-            file_mb: cols.num(&f, "file_mb", row)?,
-        });
-    }
-    if rows.is_empty() {
-        bail!("{}: no data rows", path.display());
-    }
-    Ok(rows)
+    let t = Table::read(path)?;
+    (0..t.rows.len())
+        .map(|r| {
+            Ok(Row {
+                scene: t.get(r, "scene")?.to_string(),
+                subdivide: t.num(r, "subdivide")? as u32,
+                triangles: t.num(r, "triangles")?,
+                levels: t.num(r, "levels")? as u32,
+                placement_cpu_s: t.optional(r, "placement_cpu_s")?,
+                refine_cpu_s: t.optional(r, "refine_cpu_s")?,
+                bounces_cpu_s: t.optional(r, "bounces_cpu_s")?,
+                wall_s: t.num(r, "wall_s")?,
+                cpu_s: t.num(r, "cpu_s")?,
+                peak_mb: t.num(r, "peak_mb")?,
+                file_mb: t.num(r, "file_mb")?,
+            })
+        })
+        .collect()
 }
 
 /// One quantity drawn in a panel: its name, colour and value.
