@@ -271,7 +271,7 @@ fn transport_stage(
     if let (false, Some((index, count))) = (opts.basis_only, opts.shard) {
         let owner = owners(&ib, count);
         let need = needed(&ib, &owner, index);
-        let (t, _, _) = refine_t(&ib, caster, &transport_params, light, Some(&need), obs);
+        let (t, _, _) = refine_t(&ib, caster, &transport_params, light, Some(&need), obs)?;
         shard = Some(shard_section(
             &ib,
             &t,

@@ -5,6 +5,7 @@ use std::time::Instant;
 
 use mlt_format::adjacency::{children, neighbors};
 use mlt_format::light::LightDesc;
+use mlt_format::light_model::Light;
 use mlt_format::links::{Links, SenderLinks, LINK_DIM};
 use mlt_format::meta::{
     ErrorEstimate, LeftOut, RefinementDrop, TransportMeta, TransportParams, TransportReport,
@@ -201,7 +202,7 @@ pub fn compute_transport(
     obs: &dyn Observer,
 ) -> Result<TransportOutput, BakeError> {
     check_params(&params, ib.levels() as u32)?;
-    let (t, rstats, refine_s) = refine_t(ib, caster, &params, light, None, obs);
+    let (t, rstats, refine_s) = refine_t(ib, caster, &params, light, None, obs)?;
     let dropped = rstats.dropped_share();
     let mut out = finish_transport(ib, t, rstats, params, policy, refine_s, obs)?;
     out.refinement_drop = Some(dropped);
@@ -223,7 +224,8 @@ pub fn refinement_warning(drop: &RefinementDrop, epsilon: f32, tolerance: f64) -
 }
 
 /// The refinement of T (optionally only of the receivers marked in `needed`, for a shard);
-/// returns T, its counts and the seconds it took.
+/// returns T, its counts and the seconds it took. A light the light model refuses is an
+/// error.
 pub fn refine_t(
     ib: &IndexedBasis,
     caster: &dyn RayCaster,
@@ -231,10 +233,11 @@ pub fn refine_t(
     light: &LightDesc,
     needed: Option<&[bool]>,
     obs: &dyn Observer,
-) -> (ReceiverLinks, RefineStats, f64) {
+) -> Result<(ReceiverLinks, RefineStats, f64), BakeError> {
     obs.stage("refinement of T");
     let t0 = Instant::now();
-    let emission = representative_emission(ib, caster, light, params.sender_levels as usize);
+    let light = Light::from_desc(light).map_err(|e| BakeError::InvalidParameter(e.to_string()))?;
+    let emission = representative_emission(ib, caster, &light, params.sender_levels as usize);
     let nb = neighbors(ib);
     let ch = children(ib);
     let settings = RefineSettings {
@@ -273,7 +276,7 @@ pub fn refine_t(
             100.0 * rstats.dropped_share()
         ),
     );
-    (t, rstats, refine_s)
+    Ok((t, rstats, refine_s))
 }
 
 /// From T to the stored S: the spectral-radius check, the Neumann series, sender-major

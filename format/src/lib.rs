@@ -27,6 +27,7 @@ pub mod flat_section;
 pub mod flatten;
 pub mod kernel;
 pub mod light;
+pub mod light_model;
 pub mod links;
 pub mod meta;
 pub mod morton;

@@ -86,7 +86,8 @@ fn the_estimate_of_the_light_refinement_drops_is_within_a_factor_of_two() {
     let senders = ib.basis.level_offsets[SENDER_LEVELS] as usize;
     // Uniform unit emission (what the estimate assumes) and a point light near a wall.
     let uniform = pull_push_levels(&ib, &vec![1.0; senders * 3], 3, SENDER_LEVELS).0;
-    let point = representative_emission(&ib, caster.as_ref(), &light(), SENDER_LEVELS);
+    let model = mlt_format::light_model::Light::from_desc(&light()).unwrap();
+    let point = representative_emission(&ib, caster.as_ref(), &model, SENDER_LEVELS);
     let eps: f32 = std::env::var("MLT_LOSS_EPS")
         .ok()
         .and_then(|v| v.parse().ok())
@@ -100,6 +101,7 @@ fn the_estimate_of_the_light_refinement_drops_is_within_a_factor_of_two() {
             None,
             &Silent,
         )
+        .unwrap()
     };
     let ((t_exact, s_exact, _), (t_cut, s_cut, _)) = (refined(1e-6), refined(eps));
     // Nothing is dropped at epsilon near zero.

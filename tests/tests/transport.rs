@@ -364,7 +364,8 @@ fn finer_points_without_coarser_support_are_computed_and_keep_their_links() {
         seed: 1,
     };
     let (t, _, _) =
-        mlt_bake::transport::refine_t(&ib, caster.as_ref(), &params, &scene.light, None, &Silent);
+        mlt_bake::transport::refine_t(&ib, caster.as_ref(), &params, &scene.light, None, &Silent)
+            .unwrap();
     let mut orphans = 0;
     for l in 1..b.levels() {
         for i in b.level_range(l) {
