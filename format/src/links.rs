@@ -144,6 +144,12 @@ fn check(
 }
 
 impl ArchivedLinks {
+    /// Per hierarchical point of `points`: whether it receives a link
+    /// ([`crate::flat_section::linked_flags`] of the receiver ids).
+    pub fn linked_flags(&self, points: usize) -> Vec<bool> {
+        crate::flat_section::linked_flags(points, self.receiver_ids.iter().map(|r| r.to_native()))
+    }
+
     /// Checks the invariants [`apply`](Self::apply) relies on (call once after mapping).
     pub fn validate(&self) -> Result<(), FormatError> {
         let ids: Vec<u32> = self.sender_ids.iter().map(|v| v.to_native()).collect();

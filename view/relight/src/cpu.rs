@@ -30,7 +30,6 @@ use std::time::Instant;
 
 use glam::Vec3;
 use mlt_format::flat_basis::FlatBasis;
-use mlt_format::flat_section::linked_flags;
 use mlt_format::links::{ArchivedLinks, LINK_DIM};
 use mlt_format::IndexedBasis;
 use mlt_scenes::RayCaster;
@@ -158,10 +157,7 @@ impl<'a> CpuRelighter<'a> {
                 || {
                     let t = Instant::now();
                     // Only receivers with links can have a non-zero coefficient.
-                    let keep = linked_flags(
-                        ib.basis.len(),
-                        links.receiver_ids.iter().map(|r| r.to_native()),
-                    );
+                    let keep = links.linked_flags(ib.basis.len());
                     let flat = match stored {
                         Some(flat) => Ok(flat),
                         None => FlatBasis::build(ib, Some(&keep)),

@@ -7,7 +7,7 @@ use std::path::Path;
 use anyhow::{Context, Result};
 use glam::Vec3;
 use mlt_format::flat_basis::{FlatBasis, FlatRule};
-use mlt_format::flat_section::{linked_flags, StoredFlat};
+use mlt_format::flat_section::StoredFlat;
 use mlt_format::links::ArchivedLinks;
 use mlt_format::meta::CameraInfo;
 use mlt_format::{BakedFile, IndexedBasis, Meta};
@@ -123,10 +123,7 @@ fn stored_flat_basis(
     ib: &IndexedBasis,
     links: &ArchivedLinks,
 ) -> Result<Option<FlatBasis>> {
-    let linked = linked_flags(
-        ib.basis.len(),
-        links.receiver_ids.iter().map(|r| r.to_native()),
-    );
+    let linked = links.linked_flags(ib.basis.len());
     Ok(match file.flat_basis(ib, &linked)? {
         StoredFlat::Stored(flat) => Some(flat),
         StoredFlat::Absent => None,
@@ -143,10 +140,7 @@ fn stored_flat_basis(
 
 /// The flat basis of `ib` for the receivers of `links` built by `rule`.
 fn flat_basis_by(ib: &IndexedBasis, links: &ArchivedLinks, rule: FlatRule) -> Result<FlatBasis> {
-    let linked = linked_flags(
-        ib.basis.len(),
-        links.receiver_ids.iter().map(|r| r.to_native()),
-    );
+    let linked = links.linked_flags(ib.basis.len());
     FlatBasis::build_with(ib, Some(&linked), rule).context("building the flat basis")
 }
 
