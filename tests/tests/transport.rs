@@ -4,17 +4,20 @@ use glam::Vec3;
 use mlt_bake::{BakeOptions, Silent};
 use mlt_format::pull_push::pull_push;
 use mlt_format::{BakedFile, WriteOptions};
+use mlt_relight::FineBounceOp;
 use mlt_tests::{bake_with, surface_samples};
 
 /// Bakes the closed sphere, lights it with a point light of intensity 1 at the centre
-/// (direct irradiance I / R^2 everywhere), applies S from the written file and returns the
-/// indirect irradiance (n . vector irradiance) at surface points, per colour channel.
+/// (direct irradiance I / R^2 everywhere), applies S from the written file (then, with
+/// `fine`, the relighter's finer-receiver bounces) and returns the indirect irradiance
+/// (n . vector irradiance) at surface points, per colour channel.
 fn sphere_indirect(
     albedo: f32,
     radius: f32,
     bounces: u32,
     epsilon: f32,
     all_receivers: bool,
+    fine: bool,
 ) -> Vec<[f32; 3]> {
     let spec = format!("builtin:sphere?albedo={albedo}&radius={radius}");
     let out = bake_with(
@@ -41,6 +44,16 @@ fn sphere_indirect(
     let (e, _) = pull_push(&ib, &samples, 3);
     let mut i = vec![0.0f32; ib.basis.len() * 9];
     links.apply(&e, 0.0, &mut i);
+    if fine {
+        let tm = file.transport_meta().unwrap().expect("file has transport");
+        assert_eq!(
+            FineBounceOp::applies_to(&tm),
+            !all_receivers && bounces >= 2
+        );
+        if FineBounceOp::applies_to(&tm) {
+            FineBounceOp::build(&ib, links).apply(&mut i);
+        }
+    }
     let scene = mlt_scenes::load_scene(&spec).unwrap();
     let caster = scene.build_caster();
     surface_samples(caster.as_ref(), Vec3::ZERO, 500)
@@ -69,7 +82,7 @@ fn deviation(values: &[[f32; 3]], expected: f32) -> (f32, f64) {
 
 fn check_sphere(albedo: f32, bounces: u32, tolerance: f32) {
     let radius = 2.0;
-    let values = sphere_indirect(albedo, radius, bounces, 1e-5, true);
+    let values = sphere_indirect(albedo, radius, bounces, 1e-5, true, false);
     // Phi / (4 pi R^2) with Phi = 4 pi I, I = 1.
     let expected = albedo / (1.0 - albedo) / (radius * radius);
     let (worst, mean) = deviation(&values, expected);
@@ -101,15 +114,39 @@ fn coarsest_only_bounces_lose_energy_on_curved_geometry() {
     // vector irradiance of a sphere from the coarsest level alone: the first bounce stays
     // exact, later ones come out low. This documents the size of that effect.
     let radius = 2.0;
-    let one = sphere_indirect(0.5, radius, 1, 1e-5, false);
+    let one = sphere_indirect(0.5, radius, 1, 1e-5, false, false);
     let (w1, m1) = deviation(&one, 0.5 / (radius * radius));
     assert!(w1 < 0.02 && (m1 - 0.125).abs() < 0.002, "{w1} {m1}");
-    let coarse = sphere_indirect(0.5, radius, 8, 1e-5, false);
+    let coarse = sphere_indirect(0.5, radius, 8, 1e-5, false, false);
     let (_, mc) = deviation(&coarse, 1.0);
-    let all = sphere_indirect(0.5, radius, 8, 1e-5, true);
+    let all = sphere_indirect(0.5, radius, 8, 1e-5, true, false);
     let (_, ma) = deviation(&all, 1.0);
     eprintln!("8 bounces: coarsest-only mean {mc:.5}, all-receivers mean {ma:.5}, exact 0.24902");
     assert!(mc < ma && ma > 0.245 && mc > 0.2, "{mc} {ma}");
+}
+
+#[test]
+fn fine_bounces_take_back_what_coarsest_only_bounces_lose() {
+    // The relighter's step (mlt_relight::fine_bounce) chains bounces 2 and later through the
+    // finer receivers' links to level-0 senders: on the sphere, where the coarsest-only
+    // bounces come out low, it must bring every point to the analytic value (bounces 2-9 at
+    // the finer levels: 0.25 (1 - 0.5^9) = 0.24951), as computing the bounces on every
+    // receiver in the bake does. A file with one bounce must not get it.
+    let radius = 2.0;
+    let expected = 0.25 * (1.0 - 0.5f32.powi(9));
+    let coarse = sphere_indirect(0.5, radius, 8, 1e-5, false, false);
+    let (wc, mc) = deviation(&coarse, expected);
+    let fine = sphere_indirect(0.5, radius, 8, 1e-5, false, true);
+    let (wf, mf) = deviation(&fine, expected);
+    eprintln!(
+        "8 bounces: coarsest-only mean {mc:.5} (worst {wc:.4}), with fine bounces {mf:.5} (worst {wf:.4}), expected {expected:.5}"
+    );
+    assert!(wc > 0.05, "coarsest-only bounces were not low here: {wc}");
+    assert!((mf / expected as f64 - 1.0).abs() < 0.01, "mean {mf}");
+    assert!(wf < 0.03, "worst deviation {wf}");
+    let one = sphere_indirect(0.5, radius, 1, 1e-5, false, true);
+    let (w1, _) = deviation(&one, 0.5 / (radius * radius));
+    assert!(w1 < 0.02, "{w1}");
 }
 
 #[test]

@@ -17,7 +17,8 @@
 //! 2. pull-push projection onto the sender levels, `e = P-dagger E` (section 2.1), with the
 //!    weights precomputed ([`PullPushOp`]);
 //! 3. `i = S e`, receiver-major in full precision ([`ReceiverLinks`]), skipping senders whose
-//!    light is negligible;
+//!    light is negligible; then, when [`CpuRelighter::fine_bounces`] is set, the finer
+//!    receivers' bounces 2 and later from the level-0 coefficients ([`FineBounceOp`]);
 //! 4. flattening of `i` to the flat basis (section 4.1: one level on the points the solution
 //!    needs, [`FlatBasis`]) by a precomputed sparse operator ([`FlattenOp`], one row per flat
 //!    point) that holds only the columns of receivers with links, then one sharpening step
@@ -37,6 +38,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::error::RelightError;
+use crate::fine_bounce::FineBounceOp;
 use crate::flatten_op::{FlattenOp, FlattenScratch, SharpenOp, SharpenScratch};
 use crate::light::Light;
 use crate::pull_push_op::PullPushOp;
@@ -68,6 +70,10 @@ pub struct LoadStats {
     pub pull_push_bytes: usize,
     /// Heap bytes of the receiver-major decoded links.
     pub links_bytes: usize,
+    /// Links of the finer receivers to level-0 senders ([`FineBounceOp`]), and their heap
+    /// bytes.
+    pub fine_bounce_links: usize,
+    pub fine_bounce_bytes: usize,
     /// Sender points that cast shadow rays (the others are pulled from their children).
     pub direct_points: usize,
     /// Whether the file stores each level's points in Morton order (as the bake writes them);
@@ -87,6 +93,7 @@ pub struct CpuRelighter<'a> {
     sample_used: Vec<bool>,
     support: SupportAverage<'a>,
     receiver_links: ReceiverLinks,
+    fine_bounce: FineBounceOp,
     /// The flat basis the frames' flat coefficients belong to.
     flat: FlatBasis,
     /// `None` only if the operator is too large for 32-bit offsets: then
@@ -115,6 +122,10 @@ pub struct CpuRelighter<'a> {
     /// Sharpen the flat coefficients after flattening (step 4); off, they are the exact
     /// values of Eq. 6 at the flat points, which the flat basis then smooths.
     pub sharpen: bool,
+    /// Add bounces 2 and later at the finer receivers after `i = S e` (step 3,
+    /// [`FineBounceOp`]). Off by default: set it for a file whose `S` computed them on the
+    /// coarsest receivers only ([`FineBounceOp::applies_to`] on its transport metadata).
+    pub fine_bounces: bool,
     frame: Frame,
     last: Option<Light>,
 }
@@ -146,32 +157,39 @@ impl<'a> CpuRelighter<'a> {
         let t0 = Instant::now();
         let sender_levels = sender_levels.min(ib.levels());
         let flat_stored = stored.is_some();
-        let ((pull_push, receiver_links), (flat, (flatten_op, sharpen_op), flatten_build_ms)) =
-            rayon::join(
-                || {
-                    rayon::join(
-                        || PullPushOp::build(ib, sender_levels),
-                        || ReceiverLinks::build(links),
-                    )
-                },
-                || {
-                    let t = Instant::now();
-                    // Only receivers with links can have a non-zero coefficient.
-                    let keep = links.linked_flags(ib.basis.len());
-                    let flat = match stored {
-                        Some(flat) => Ok(flat),
-                        None => FlatBasis::build(ib, Some(&keep)),
-                    };
-                    let ops = match flat.as_ref() {
-                        Ok(flat) => rayon::join(
-                            || FlattenOp::build(ib, flat, Some(&keep)).ok(),
-                            || SharpenOp::build(flat).ok(),
-                        ),
-                        Err(_) => (None, None),
-                    };
-                    (flat, ops, t.elapsed().as_secs_f64() * 1e3)
-                },
-            );
+        let (
+            (pull_push, (receiver_links, fine_bounce)),
+            (flat, (flatten_op, sharpen_op), flatten_build_ms),
+        ) = rayon::join(
+            || {
+                rayon::join(
+                    || PullPushOp::build(ib, sender_levels),
+                    || {
+                        rayon::join(
+                            || ReceiverLinks::build(links),
+                            || FineBounceOp::build(ib, links),
+                        )
+                    },
+                )
+            },
+            || {
+                let t = Instant::now();
+                // Only receivers with links can have a non-zero coefficient.
+                let keep = links.linked_flags(ib.basis.len());
+                let flat = match stored {
+                    Some(flat) => Ok(flat),
+                    None => FlatBasis::build(ib, Some(&keep)),
+                };
+                let ops = match flat.as_ref() {
+                    Ok(flat) => rayon::join(
+                        || FlattenOp::build(ib, flat, Some(&keep)).ok(),
+                        || SharpenOp::build(flat).ok(),
+                    ),
+                    Err(_) => (None, None),
+                };
+                (flat, ops, t.elapsed().as_secs_f64() * 1e3)
+            },
+        );
         let flat = flat?;
         let sample_used = pull_push.sample_used();
         let load = LoadStats {
@@ -187,6 +205,8 @@ impl<'a> CpuRelighter<'a> {
             sharpen_bytes: sharpen_op.as_ref().map_or(0, SharpenOp::bytes),
             pull_push_bytes: pull_push.bytes(),
             links_bytes: receiver_links.bytes(),
+            fine_bounce_links: fine_bounce.link_count(),
+            fine_bounce_bytes: fine_bounce.bytes(),
             direct_points: sample_used.iter().filter(|u| **u).count(),
             points_in_morton_order: flatten_op.as_ref().is_some_and(FlattenOp::in_point_order),
         };
@@ -200,6 +220,7 @@ impl<'a> CpuRelighter<'a> {
             sample_used,
             support: SupportAverage::new(ib, pull_push_points(ib, sender_levels)),
             receiver_links,
+            fine_bounce,
             flat,
             flatten_op,
             flatten_scratch: FlattenScratch::default(),
@@ -211,6 +232,7 @@ impl<'a> CpuRelighter<'a> {
             support_average: true,
             flatten_on_cpu: true,
             sharpen: true,
+            fine_bounces: false,
             frame: Frame::default(),
             last: None,
         })
@@ -426,6 +448,9 @@ impl Relight for CpuRelighter<'_> {
             i.fill(0.0);
             self.links.apply(&e, threshold, &mut i)
         };
+        if self.fine_bounces {
+            self.fine_bounce.apply(&mut i);
+        }
         times.transport_ms = t.elapsed().as_secs_f64() * 1e3;
 
         let t = Instant::now();

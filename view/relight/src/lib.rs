@@ -10,6 +10,8 @@
 //! - [`pull_push_op`]: the pull-push projection `e = P-dagger E` (section 2.1) with precomputed
 //!   weights;
 //! - [`receiver_links`]: `i = S e` receiver-major in full precision (sections 3.1-3.3);
+//! - [`fine_bounce`]: bounces 2 and later at the finer receivers, which the bake leaves to
+//!   the coarsest level, chained per frame through the level-0 coefficients of `S e`;
 //! - [`flatten_op`]: the sparse flattening operator (section 4.1), whose packed arrays a GPU
 //!   compute pass can also apply ([`flatten_op::FlattenOp::parts`]).
 //!
@@ -18,6 +20,7 @@
 
 pub mod cpu;
 pub mod error;
+pub mod fine_bounce;
 pub mod flatten_op;
 pub mod light;
 pub mod pull_push_op;
@@ -27,6 +30,7 @@ pub mod support_average;
 
 pub use cpu::{CpuRelighter, LoadStats};
 pub use error::RelightError;
+pub use fine_bounce::FineBounceOp;
 pub use flatten_op::{
     FlattenOp, FlattenOptions, FlattenScratch, Kernel, SharpenOp, SharpenScratch,
 };

@@ -34,11 +34,40 @@ const RECEIVER_CHUNK: usize = 1024;
 impl ReceiverLinks {
     /// Transposes validated links (call [`ArchivedLinks::validate`] first).
     pub fn build(links: &ArchivedLinks) -> ReceiverLinks {
+        Self::build_where(links, |_, _| true)
+    }
+
+    /// [`ReceiverLinks::build`] keeping only the links `(sender, receiver)` for which `keep`
+    /// holds (the stored sender slots without a kept link are left out).
+    pub fn build_where(links: &ArchivedLinks, keep: impl Fn(u32, u32) -> bool) -> ReceiverLinks {
         let receivers = links.receivers.to_native();
         let n = receivers as usize;
+        // Per stored slot, its sender, scale and kept links `(receiver, index into values)`.
+        let mut sender_ids = Vec::new();
+        let mut scales = Vec::new();
+        let mut kept: Vec<(u32, u32, usize)> = Vec::new(); // (receiver, new slot, link index)
+        for slot in 0..links.sender_ids.len() {
+            let s = links.sender_ids[slot].to_native();
+            let (a, b) = (
+                links.offsets[slot].to_native() as usize,
+                links.offsets[slot + 1].to_native() as usize,
+            );
+            let new_slot = sender_ids.len() as u32;
+            let before = kept.len();
+            for k in a..b {
+                let r = links.receiver_ids[k].to_native();
+                if keep(s, r) {
+                    kept.push((r, new_slot, k));
+                }
+            }
+            if kept.len() > before {
+                sender_ids.push(s);
+                scales.push(links.scales[slot].to_native());
+            }
+        }
         let mut count = vec![0u32; n + 1];
-        for r in links.receiver_ids.iter() {
-            count[r.to_native() as usize + 1] += 1;
+        for &(r, _, _) in &kept {
+            count[r as usize + 1] += 1;
         }
         let receiver_ids: Vec<u32> = (0..n)
             .filter(|&r| count[r + 1] > 0)
@@ -48,35 +77,34 @@ impl ReceiverLinks {
         for r in 0..n {
             count[r + 1] += count[r];
         }
-        let total = links.receiver_ids.len();
+        let total = kept.len();
         let mut cursor = count.clone();
         let mut slots = vec![0u32; total];
         let mut values = vec![[0.0f32; LINK_DIM]; total];
-        for slot in 0..links.sender_ids.len() {
-            let (a, b) = (
-                links.offsets[slot].to_native() as usize,
-                links.offsets[slot + 1].to_native() as usize,
-            );
-            for k in a..b {
-                let r = links.receiver_ids[k].to_native() as usize;
-                let at = cursor[r] as usize;
-                cursor[r] += 1;
-                slots[at] = slot as u32;
-                let v = &links.values[k * LINK_DIM..(k + 1) * LINK_DIM];
-                values[at] = std::array::from_fn(|d| f16::from_bits(v[d].to_native()).to_f32());
-            }
+        // `kept` is in slot order, so each receiver's links stay in ascending sender order.
+        for &(r, slot, k) in &kept {
+            let at = cursor[r as usize] as usize;
+            cursor[r as usize] += 1;
+            slots[at] = slot;
+            let v = &links.values[k * LINK_DIM..(k + 1) * LINK_DIM];
+            values[at] = std::array::from_fn(|d| f16::from_bits(v[d].to_native()).to_f32());
         }
         let mut offsets: Vec<u32> = receiver_ids.iter().map(|&r| count[r as usize]).collect();
         offsets.push(total as u32);
         ReceiverLinks {
             receivers,
-            sender_ids: links.sender_ids.iter().map(|s| s.to_native()).collect(),
-            scales: links.scales.iter().map(|s| s.to_native()).collect(),
+            sender_ids,
+            scales,
             receiver_ids,
             offsets,
             slots,
             values,
         }
+    }
+
+    /// Links held.
+    pub fn link_count(&self) -> usize {
+        self.values.len()
     }
 
     /// Heap bytes held.
@@ -100,6 +128,18 @@ impl ReceiverLinks {
     ///
     /// Panics unless `e.len() >= 3 * senders` and `i.len() == 9 * receivers`.
     pub fn apply(&self, e: &[f32], threshold: f32, i: &mut [f32]) -> usize {
+        self.apply_impl::<false>(e, threshold, i)
+    }
+
+    /// `i += S e` over the receivers with links (the others are left as they are), each
+    /// receiver's sum formed first, in ascending sender order, then added: the same bits as
+    /// [`ArchivedLinks::apply`] into a zeroed vector, added to `i`. `e` needs entries only
+    /// for the senders held. Returns the number of senders used.
+    pub fn apply_add(&self, e: &[f32], threshold: f32, i: &mut [f32]) -> usize {
+        self.apply_impl::<true>(e, threshold, i)
+    }
+
+    fn apply_impl<const ADD: bool>(&self, e: &[f32], threshold: f32, i: &mut [f32]) -> usize {
         use rayon::prelude::*;
         let n = self.receivers as usize;
         assert_eq!(i.len(), n * LINK_DIM);
@@ -139,7 +179,9 @@ impl ReceiverLinks {
             rest = tail;
             at = end;
         }
-        rest.fill(0.0);
+        if !ADD {
+            rest.fill(0.0);
+        }
         #[cfg(target_arch = "x86_64")]
         let avx2 = std::arch::is_x86_feature_detected!("avx2");
         parts.into_par_iter().for_each(|(c, first, out)| {
@@ -147,10 +189,10 @@ impl ReceiverLinks {
             if avx2 {
                 // SAFETY: this CPU has AVX2 (checked above), the only requirement for calling
                 // a function compiled with it.
-                unsafe { self.chunk_avx2(&w, c, first, out) };
+                unsafe { self.chunk_avx2::<ADD>(&w, c, first, out) };
                 return;
             }
-            self.chunk(&w, c, first, out);
+            self.chunk::<ADD>(&w, c, first, out);
         });
         used
     }
@@ -159,15 +201,30 @@ impl ReceiverLinks {
     /// instruction; no fused multiply-adds, so the same bits).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    fn chunk_avx2(&self, w: &[[f32; LINK_DIM]], c: usize, first: usize, out: &mut [f32]) {
-        self.chunk(w, c, first, out);
+    fn chunk_avx2<const ADD: bool>(
+        &self,
+        w: &[[f32; LINK_DIM]],
+        c: usize,
+        first: usize,
+        out: &mut [f32],
+    ) {
+        self.chunk::<ADD>(w, c, first, out);
     }
 
-    /// The receivers of chunk `c` into `out`, which starts at point `first`.
+    /// The receivers of chunk `c` into `out` (added to it with `ADD`), which starts at point
+    /// `first`.
     #[inline(always)]
-    fn chunk(&self, w: &[[f32; LINK_DIM]], c: usize, first: usize, out: &mut [f32]) {
+    fn chunk<const ADD: bool>(
+        &self,
+        w: &[[f32; LINK_DIM]],
+        c: usize,
+        first: usize,
+        out: &mut [f32],
+    ) {
         let receivers = &self.receiver_ids;
-        out.fill(0.0);
+        if !ADD {
+            out.fill(0.0);
+        }
         let qs = c * RECEIVER_CHUNK..((c + 1) * RECEIVER_CHUNK).min(receivers.len());
         for q in qs {
             let r = receivers[q] as usize - first;
@@ -179,7 +236,14 @@ impl ReceiverLinks {
                     acc[d] += ws[d] * v[d];
                 }
             }
-            out[r * LINK_DIM..(r + 1) * LINK_DIM].copy_from_slice(&acc);
+            let o = &mut out[r * LINK_DIM..(r + 1) * LINK_DIM];
+            if ADD {
+                for d in 0..LINK_DIM {
+                    o[d] += acc[d];
+                }
+            } else {
+                o.copy_from_slice(&acc);
+            }
         }
     }
 }
@@ -190,9 +254,8 @@ mod tests {
     use mlt_format::links::{Links, SenderLinks};
     use rkyv::rancor;
 
-    #[test]
-    fn receiver_major_gives_the_same_bits() {
-        // Several senders per receiver, mixed signs, one skipped sender.
+    /// Six senders, twelve linked receivers of 14, mixed signs.
+    fn sample_links() -> Links {
         let cols: Vec<Vec<(u32, [f32; 9])>> = (0..6u32)
             .map(|s| {
                 (0..12u32)
@@ -214,7 +277,16 @@ mod tests {
                 links: c,
             }),
         );
-        let bytes = rkyv::to_bytes::<rancor::Error>(&l).unwrap();
+        l
+    }
+
+    fn bits(v: &[f32]) -> Vec<u32> {
+        v.iter().map(|x| x.to_bits()).collect()
+    }
+
+    #[test]
+    fn receiver_major_gives_the_same_bits() {
+        let bytes = rkyv::to_bytes::<rancor::Error>(&sample_links()).unwrap();
         let a = rkyv::access::<ArchivedLinks, rancor::Error>(&bytes).unwrap();
         a.validate().unwrap();
         let rl = ReceiverLinks::build(a);
@@ -227,9 +299,40 @@ mod tests {
             assert_eq!(a.apply(e, threshold, &mut want), senders);
             let mut got = vec![f32::NAN; 14 * 9];
             assert_eq!(rl.apply(e, threshold, &mut got), senders);
-            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
             assert_eq!(bits(&got), bits(&want));
             assert!(got[12 * 9..].iter().all(|&x| x == 0.0));
         }
+    }
+
+    #[test]
+    fn a_filtered_product_added_gives_the_bits_of_the_full_product_of_the_kept_links() {
+        // Keep senders 0-2 and receivers from 4 on: the added product must equal the full
+        // product of the same links (senders 3-5 dark, receivers below 4 not written) formed
+        // on its own and then added, bit for bit.
+        let bytes = rkyv::to_bytes::<rancor::Error>(&sample_links()).unwrap();
+        let a = rkyv::access::<ArchivedLinks, rancor::Error>(&bytes).unwrap();
+        a.validate().unwrap();
+        let rl = ReceiverLinks::build_where(a, |s, r| s < 3 && r >= 4);
+        assert!(rl.receiver_ids().iter().all(|&r| r >= 4));
+        assert_eq!(
+            rl.link_count(),
+            (0..3u32)
+                .map(|s| (4..12u32).filter(|r| (r + s) % 3 != 0).count())
+                .sum::<usize>()
+        );
+        let e: Vec<f32> = (0..18).map(|k| 0.3 + (k as f32 * 1.3).cos()).collect();
+        let mut dark = e.clone();
+        dark[9..].fill(0.0);
+        let mut product = vec![0.0f32; 14 * 9];
+        a.apply(&dark, 0.0, &mut product);
+        let start: Vec<f32> = (0..14 * 9).map(|k| (k as f32 * 0.71).sin()).collect();
+        let mut want = start.clone();
+        for (k, w) in want.iter_mut().enumerate().skip(4 * 9) {
+            *w += product[k];
+        }
+        let mut got = start.clone();
+        // Only the kept senders' entries are read.
+        assert_eq!(rl.apply_add(&e[..9], 0.0, &mut got), 3);
+        assert_eq!(bits(&got), bits(&want));
     }
 }

@@ -83,6 +83,12 @@ pub struct RelightArgs {
     /// smoothing.
     #[arg(long)]
     pub no_sharpen: bool,
+    /// Leave the finer receivers with the first bounce only, as the bake's `S` has them (the
+    /// paper's relighting): by default, for a file whose bounces 2 and later were computed on
+    /// the coarsest receivers, they are added at the finer receivers each frame from the
+    /// level-0 coefficients of `S e`, through the finer receivers' links to level-0 senders.
+    #[arg(long)]
+    pub no_fine_bounces: bool,
     /// For experiments: build the flat basis with this neighbour count and radius factor
     /// (`K,F`: each flat radius F times the distance to the K-th nearest flat point; `K,F,H,R`
     /// also sets the hole weight and reach) instead of reading the file's or building it by

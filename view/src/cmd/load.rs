@@ -11,6 +11,7 @@ use mlt_format::flat_section::StoredFlat;
 use mlt_format::links::ArchivedLinks;
 use mlt_format::meta::CameraInfo;
 use mlt_format::{BakedFile, IndexedBasis, Meta};
+use mlt_relight::FineBounceOp;
 use mlt_scenes::{RayCaster, Scene};
 use mlt_view::{Camera, CpuRelighter, Light};
 
@@ -92,6 +93,7 @@ pub fn with_viewing<T>(args: &BakedArgs, f: impl FnOnce(Viewing<'_>) -> Result<T
     relighter.adaptive_shadows = !relight.all_shadow_rays;
     relighter.support_average = !relight.point_samples;
     relighter.sharpen = !relight.no_sharpen;
+    relighter.fine_bounces = !relight.no_fine_bounces && FineBounceOp::applies_to(&tm);
     if relighter.support_average {
         relighter.build_support_tables();
     }

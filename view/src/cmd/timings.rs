@@ -76,6 +76,7 @@ fn relight_frames(args: &TimingsArgs, v: &mut Viewing<'_>) -> serde_json::Value 
         "median_shadow_rays_cast": median(rays),
         "support_average": !args.baked.relight.point_samples,
         "sharpen": !args.baked.relight.no_sharpen,
+        "fine_bounces": v.relighter.fine_bounces,
         "median_averaged_points": median(averaged),
         "load": v.relighter.load_stats(),
         "gpu": "not used: CPU relighting only (`view render FILE --out DIR` renders)",

@@ -62,6 +62,8 @@ pub fn relight_file(path: &Path, spec: &str, light: impl FnOnce(Light) -> Light)
         8,
     )
     .expect("relighting operators");
+    // As the viewer does for this file (view/src/cmd/load.rs).
+    relighter.fine_bounces = mlt_relight::FineBounceOp::applies_to(&tm);
     let frame = relighter.relight(&light).clone();
     let flat = relighter.flat_basis().clone();
     drop(relighter);
