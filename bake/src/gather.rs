@@ -76,6 +76,9 @@ pub struct GatherCounts {
     pub rays: u64,
     /// Hits at which some sender level had no support.
     pub unsupported: u64,
+    /// Hits nearer to the receiver than its level's disk radius: surfaces in contact with the
+    /// receiver's basis function (`refine` uses their share).
+    pub near: u64,
 }
 
 /// Adds `T'_ij` for every sender `j` (points of levels `0..sender_levels`) seen from receiver
@@ -103,6 +106,7 @@ pub fn gather(
     let w_ray = 2.0 / rays as f32;
     let origin = x + n * eps;
     let mut counts = GatherCounts::default();
+    let near = b.disk_radii[b.level_of(receiver)];
     for k in 0..rays {
         let cos_t = (k as f32 + 0.5) / rays as f32;
         let phi = std::f32::consts::TAU * (radical_inverse(k) + rotation).fract();
@@ -112,6 +116,9 @@ pub fn gather(
         let Some(hit) = caster.intersect(origin, dir, 0.0, f32::INFINITY) else {
             continue;
         };
+        if (hit.position - origin).length() < near {
+            counts.near += 1;
+        }
         let (y, ny) = (hit.position.to_array(), hit.shading_normal.to_array());
         let rho = hit.albedo;
         let v: [f32; LINK_DIM] = [

@@ -37,11 +37,17 @@
 //! fraction of a percent of the receivers), and a level-0 receiver with links queues its
 //! children, so that finer receivers correct what its wide function spreads.
 //!
-//! Finer levels keep Fig. 5 alone. Keeping level 1's sub-epsilon links to coarsest senders by
-//! a budget (drop the smallest while their norms sum to at most epsilon) gains more light on
-//! Sponza but leaves dark lines at contacts on the Cornell box: its corrections, computed at
-//! level-1 points, overshoot between them where the light changes fast, and level 2, which
-//! tests link by link, does not correct them.
+//! A third departure: **level 1 keeps its sub-epsilon links to coarsest senders by a budget,
+//! away from contacts.** Of the links to coarsest senders that Fig. 5 drops, a level-1 receiver
+//! keeps all but the smallest whose norms sum to at most epsilon, so that its irradiance moves
+//! by at most about epsilon times the largest sender coefficient; these links queue no
+//! children. Near a contact a level-1 function straddles surfaces whose light differs, and its
+//! budget corrections, computed at level-1 points, overshoot between them (dark lines where a
+//! block stands on the floor), which level 2, testing link by link, does not correct. So a
+//! receiver with more than [`CONTACT_FRACTION`] of its gather hits within its level's disk
+//! radius keeps Fig. 5 alone. Level 1 gathers with [`BUDGET_GATHER_FACTOR`] times the rays,
+//! since a budget keeps links whose size is near the gather's noise.
+//! Finer levels keep Fig. 5 alone.
 //!
 //! Refinement also sums, under uniform emission at the coarsest senders, the single-bounce light
 //! of the links it drops against that of the links it keeps ([`RefineStats::dropped_share`]),
@@ -66,10 +72,20 @@ use crate::sender_cells::SenderCells;
 /// to small senders (module docs), whose noise falls with the rays, and level 0 is small.
 pub const COARSE_GATHER_FACTOR: u32 = 16;
 
+/// Gather rays of a level-1 receiver as a multiple of the bake's `gather_rays` (module docs:
+/// its budget keeps links near the gather's noise).
+pub const BUDGET_GATHER_FACTOR: u32 = 4;
+
+/// A level-1 receiver with more than this share of its gather hits nearer than its level's
+/// disk radius is at a contact and keeps Fig. 5 alone (module docs).
+pub const CONTACT_FRACTION: f32 = 0.05;
+
 /// The gather rays of a receiver of `level` when the bake asks for `gather_rays`.
 pub fn gather_rays_at(level: usize, gather_rays: u32) -> u32 {
     if level == 0 {
         gather_rays.saturating_mul(COARSE_GATHER_FACTOR)
+    } else if level == 1 {
+        gather_rays.saturating_mul(BUDGET_GATHER_FACTOR)
     } else {
         gather_rays
     }
@@ -394,6 +410,37 @@ fn process(
         } else {
             lose(j, v);
         }
+    }
+    // Level 1's budget away from contacts (module docs): of the dropped links to coarsest
+    // senders, keep all but the smallest whose norms sum to at most epsilon.
+    let contact = counts.near as f32 > CONTACT_FRACTION * counts.rays as f32;
+    if level == 1 && has_parent && !contact {
+        let mut candidates: Vec<(f32, u32)> = touched
+            .iter()
+            .filter(|&&j| j < sender_coarsest)
+            .filter(|&&j| links.binary_search_by_key(&j, |(s, _)| *s).is_err())
+            .map(|&j| (link_norm(scratch.get(j)), j))
+            .filter(|(norm, _)| *norm > 0.0)
+            .collect();
+        candidates.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let mut sum = 0.0f32;
+        let mut cut = 0;
+        for (k, (norm, _)) in candidates.iter().enumerate() {
+            if sum + norm > eps {
+                break;
+            }
+            sum += norm;
+            cut = k + 1;
+        }
+        for &(_, j) in &candidates[cut..] {
+            let v = *scratch.get(j);
+            // Counted as dropped above; kept after all.
+            for (d, a) in dropped.iter_mut().zip(along_normal(&v, n)) {
+                *d -= a;
+            }
+            links.push((j, v));
+        }
+        links.sort_unstable_by_key(|(s, _)| *s);
     }
     // A level-0 receiver's links below epsilon refine too (module docs).
     refine |= level == 0 && !links.is_empty();
