@@ -47,7 +47,18 @@
 //! receiver with more than [`CONTACT_FRACTION`] of its gather hits within its level's disk
 //! radius keeps Fig. 5 alone. Level 1 gathers with [`BUDGET_GATHER_FACTOR`] times the rays,
 //! since a budget keeps links whose size is near the gather's noise.
-//! Finer levels keep Fig. 5 alone.
+//!
+//! **At contacts the budget moves down to level 2** ([`keeps_budget`]): a level-2 receiver
+//! with more than [`CONTACT_FRACTION`] of its gather hits within its own (half as wide) disk
+//! radius keeps the same budget. Where two surfaces meet, the light a point receives changes
+//! over the distance to the other surface: a wall's irradiance falls toward the ceiling it
+//! meets, the floor darkens where a block stands on it (the floor there sees the block's unlit
+//! side over half its hemisphere). That change is spread over many coarsest senders (the other
+//! surface in place of what lies beyond it), so every single link difference is below
+//! epsilon and Fig. 5 keeps none of them: the light leaked under the blocks and the corners
+//! were too bright. Level 2 is fine enough not to straddle the contact the way level 1 does;
+//! its budget darkens the contact where the true light is dark (checked against the
+//! path-traced reference, not against the neighbourhood). Finer levels keep Fig. 5 alone.
 //!
 //! Refinement also sums, under uniform emission at the coarsest senders, the single-bounce light
 //! of the links it drops against that of the links it keeps ([`RefineStats::dropped_share`]),
@@ -79,6 +90,16 @@ pub const BUDGET_GATHER_FACTOR: u32 = 4;
 /// A level-1 receiver with more than this share of its gather hits nearer than its level's
 /// disk radius is at a contact and keeps Fig. 5 alone (module docs).
 pub const CONTACT_FRACTION: f32 = 0.05;
+
+/// Whether a receiver of `level` keeps its sub-epsilon links to coarsest senders by a budget
+/// (module docs): at level 1 away from contacts, at level 2 at contacts.
+pub fn keeps_budget(level: usize, contact: bool) -> bool {
+    match level {
+        1 => !contact,
+        2 => contact,
+        _ => false,
+    }
+}
 
 /// The gather rays of a receiver of `level` when the bake asks for `gather_rays`.
 pub fn gather_rays_at(level: usize, gather_rays: u32) -> u32 {
@@ -411,10 +432,11 @@ fn process(
             lose(j, v);
         }
     }
-    // Level 1's budget away from contacts (module docs): of the dropped links to coarsest
-    // senders, keep all but the smallest whose norms sum to at most epsilon.
+    // The budget of levels 1 and 2 (module docs): of the dropped links to coarsest senders,
+    // keep all but the smallest whose norms sum to at most epsilon.
     let contact = counts.near as f32 > CONTACT_FRACTION * counts.rays as f32;
-    if level == 1 && has_parent && !contact {
+    let budget = keeps_budget(level, contact);
+    if budget && has_parent {
         let mut candidates: Vec<(f32, u32)> = touched
             .iter()
             .filter(|&&j| j < sender_coarsest)

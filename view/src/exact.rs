@@ -164,3 +164,88 @@ pub fn dark_pixels(
     }
     dark
 }
+
+/// How much looser the reference's own test is in [`blotches`]: a pixel of the reference
+/// darker than `REFERENCE_SLACK * fraction` of its neighbourhood is dark there too. The slack
+/// absorbs the reference's noise and its box filter (the image is at pixel centres).
+pub const REFERENCE_SLACK: f32 = 2.0;
+
+/// The [`dark_pixels`] of `image` where the path-traced `reference` (same camera, same
+/// light) is not dark as well: blotches of the solution, not the light's own shape. A pixel
+/// where a block stands on the floor can be darker than a quarter of its neighbourhood in the
+/// true light (the floor there sees the unlit side of the block over half its hemisphere), and
+/// a solution that resolves that contact shadow is right, not blotched; a patch the basis
+/// leaves unsupported is dark in the solution alone. `image` and `reference` may be in
+/// different units (irradiance, radiance): each is compared with its own neighbourhood.
+pub fn blotches(
+    image: &RgbImage,
+    reference: &RgbImage,
+    points: &[Option<SurfacePoint>],
+    radius: u32,
+    fraction: f32,
+    floor: f32,
+) -> Vec<usize> {
+    assert_eq!(
+        (image.width, image.height),
+        (reference.width, reference.height),
+        "the reference has another size"
+    );
+    let dark_in_reference = dark_pixels(reference, points, radius, REFERENCE_SLACK * fraction, 0.0);
+    dark_pixels(image, points, radius, fraction, floor)
+        .into_iter()
+        .filter(|k| dark_in_reference.binary_search(k).is_err())
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 9x9 view of one flat surface, every pixel lit at 1 but those given at 0.1.
+    fn flat_view(dark: &[usize]) -> (RgbImage, Vec<Option<SurfacePoint>>) {
+        let mut image = RgbImage::new(9, 9);
+        image.pixels.fill([1.0; 3]);
+        for &k in dark {
+            image.pixels[k] = [0.1; 3];
+        }
+        let p = SurfacePoint {
+            position: [0.0; 3],
+            normal: [0.0, 0.0, 1.0],
+            albedo: [0.5; 3],
+        };
+        (image, vec![Some(p); 81])
+    }
+
+    #[test]
+    fn a_dark_pixel_is_a_blotch_only_where_the_reference_is_not_dark() {
+        let centre = 4 * 9 + 4;
+        let (solution, points) = flat_view(&[centre, centre + 1]);
+        assert_eq!(
+            dark_pixels(&solution, &points, 3, 0.25, 1e-3),
+            vec![centre, centre + 1]
+        );
+        // The reference is dark at the centre as well (a contact shadow), a third as dark as
+        // its neighbourhood at the next pixel (within the slack: dark too), bright elsewhere.
+        let (mut reference, _) = flat_view(&[centre]);
+        reference.pixels[centre + 1] = [0.45; 3];
+        assert_eq!(
+            blotches(&solution, &reference, &points, 3, 0.25, 1e-3),
+            Vec::<usize>::new()
+        );
+        // A reference lit where the solution is dark: both are blotches.
+        let (lit, _) = flat_view(&[]);
+        assert_eq!(
+            blotches(&solution, &lit, &points, 3, 0.25, 1e-3),
+            vec![centre, centre + 1]
+        );
+        // Units do not matter: the reference in radiance, the solution in irradiance.
+        let mut scaled = reference.clone();
+        for p in &mut scaled.pixels {
+            *p = p.map(|v| v / std::f32::consts::PI);
+        }
+        assert_eq!(
+            blotches(&solution, &scaled, &points, 3, 0.25, 1e-3),
+            Vec::<usize>::new()
+        );
+    }
+}
