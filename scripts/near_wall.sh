@@ -35,6 +35,7 @@ w="${size%x*}"
 h="${size#*x}"
 view="$bin/view"
 [ -x "$view" ] || { echo "near_wall: $view not built (cargo build --release)" >&2; exit 1; }
+command -v jq >/dev/null || { echo "near_wall: needs jq (apt install jq), as scripts/sweep_error.sh does" >&2; exit 1; }
 # Back wall at z = 0.5592 m, ceiling at y = 0.5488 m (the built-in box's measurements).
 positions=(
     "back 10 cm|0.278,0.274,0.4592"
@@ -64,11 +65,9 @@ for entry in "${positions[@]}"; do
     for f in "$@"; do
         out="$work/$(basename "$f" .mlt)_$tag"
         "$view" render "$f" --out "$out" --width "$w" --height "$h" --spp 4 --light-pos "$pos" >/dev/null 2>>"$work/log"
-        line="$("$view" compare "$ref" "$out" | grep '^indirect:')"
-        rmse="$(echo "$line" | sed -E 's/.*relative RMSE ([0-9.]+),.*/\1/')"
-        ratio="$(echo "$line" | sed -E 's/.*ratio of means ([0-9.]+);.*/\1/')"
-        noise="$(echo "$line" | sed -E 's/.*noise floor: rel. RMSE ([0-9.]+),.*/\1/')"
-        printf ' | %-32s' "$rmse / $ratio"
+        read -r rmse ratio noise < <("$view" compare "$ref" "$out" --json |
+            jq -r '.indirect | "\(.relative_rmse) \(.ratio_of_means) \(.noise_relative_rmse)"')
+        printf ' | %-32s' "$(printf '%.4f / %.4f' "$rmse" "$ratio")"
     done
-    printf ' | %s\n' "$noise"
+    printf ' | %.4f\n' "$noise"
 done

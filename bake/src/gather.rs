@@ -108,10 +108,7 @@ pub fn gather(
     let mut counts = GatherCounts::default();
     let near = b.disk_radii[b.level_of(receiver)];
     for k in 0..rays {
-        let cos_t = (k as f32 + 0.5) / rays as f32;
-        let phi = std::f32::consts::TAU * (radical_inverse(k) + rotation).fract();
-        let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
-        let dir = (t * (sin_t * phi.cos()) + bt * (sin_t * phi.sin()) + n * cos_t).normalize();
+        let dir = hemisphere_direction(k, rays, rotation, t, bt, n);
         counts.rays += 1;
         let Some(hit) = caster.intersect(origin, dir, 0.0, f32::INFINITY) else {
             continue;
@@ -152,6 +149,16 @@ pub fn gather(
         }
     }
     counts
+}
+
+/// Direction `k` of the gather's pattern of `rays` (module docs): `cos theta = (k + 1/2) / N`,
+/// `phi = 2 pi (radical_inverse(k) + rotation)`, in the frame `(t, bt, n)` about the normal `n`.
+#[inline]
+pub fn hemisphere_direction(k: u32, rays: u32, rotation: f32, t: Vec3, bt: Vec3, n: Vec3) -> Vec3 {
+    let cos_t = (k as f32 + 0.5) / rays as f32;
+    let phi = std::f32::consts::TAU * (radical_inverse(k) + rotation).fract();
+    let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
+    (t * (sin_t * phi.cos()) + bt * (sin_t * phi.sin()) + n * cos_t).normalize()
 }
 
 /// Van der Corput radical inverse in base 2, in `[0, 1)`: the 24 leading bits of the

@@ -435,8 +435,7 @@ fn process(
     // The budget of levels 1 and 2 (module docs): of the dropped links to coarsest senders,
     // keep all but the smallest whose norms sum to at most epsilon.
     let contact = counts.near as f32 > CONTACT_FRACTION * counts.rays as f32;
-    let budget = keeps_budget(level, contact);
-    if budget && has_parent {
+    if keeps_budget(level, contact) && has_parent {
         let mut candidates: Vec<(f32, u32)> = touched
             .iter()
             .filter(|&&j| j < sender_coarsest)

@@ -1,6 +1,7 @@
 //! The transport operator S on cases with known answers.
 
 use glam::Vec3;
+use mlt_bake::gather::{hemisphere_direction, link_norm};
 use mlt_bake::{BakeOptions, Silent};
 use mlt_format::pull_push::pull_push;
 use mlt_format::shepard::MIN_WEIGHT_SUM;
@@ -303,14 +304,6 @@ fn level_two_keeps_sub_epsilon_links_at_contacts_only() {
     let b = &ib.basis;
     let links = &out.contents.transport.as_ref().unwrap().links;
     let coarsest = b.level_range(0).len() as u32;
-    let norm = |v: [f32; 9]| {
-        (0..3)
-            .map(|c| {
-                (v[3 * c] * v[3 * c] + v[3 * c + 1] * v[3 * c + 1] + v[3 * c + 2] * v[3 * c + 2])
-                    .sqrt()
-            })
-            .fold(0.0f32, f32::max)
-    };
     // Per receiver: links to coarsest senders well below epsilon (f16 storage moves a norm by
     // a relative 2^-11 of its sender's largest value, far less than the margin).
     let mut small = vec![0u32; b.len()];
@@ -319,7 +312,7 @@ fn level_two_keeps_sub_epsilon_links_at_contacts_only() {
             continue;
         }
         for k in links.offsets[slot] as usize..links.offsets[slot + 1] as usize {
-            if norm(links.value(k, slot)) < 0.5 * epsilon {
+            if link_norm(&links.value(k, slot)) < 0.5 * epsilon {
                 small[links.receiver_ids[k] as usize] += 1;
             }
         }
@@ -336,10 +329,7 @@ fn level_two_keeps_sub_epsilon_links_at_contacts_only() {
         let rays = 256;
         let mut near = 0;
         for k in 0..rays {
-            let cos_t = (k as f32 + 0.5) / rays as f32;
-            let phi = std::f32::consts::TAU * mlt_bake::gather::radical_inverse(k);
-            let sin_t = (1.0 - cos_t * cos_t).sqrt();
-            let dir = t * (sin_t * phi.cos()) + bt * (sin_t * phi.sin()) + n * cos_t;
+            let dir = hemisphere_direction(k, rays, 0.0, t, bt, n);
             if let Some(hit) = caster.intersect(x + n * eps, dir, 0.0, b.disk_radii[2]) {
                 near += ((hit.position - x).length() < b.disk_radii[2]) as u32;
             }

@@ -124,7 +124,7 @@ fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
 /// blotches. Pixels of other surfaces are left out of the median: across an edge the light
 /// can differ by more than `1 / fraction` (the top and the front of a block under a light near
 /// the ceiling), which is no blotch; nor are pixels with fewer than half of their window on
-/// their own surface (at its edges the window is one-sided). Returns their indices.
+/// their own surface (at its edges the window is one-sided). Returns their indices, ascending.
 pub fn dark_pixels(
     image: &RgbImage,
     points: &[Option<SurfacePoint>],
