@@ -4,8 +4,11 @@
 # room's centre), path-traces a reference for each position once, and prints the indirect
 # image's relative RMSE, the reference's noise floor and the ratio of means per file.
 #
-#   scripts/near_wall.sh [--spp N] [--size WxH] [--bin DIR] [--work DIR] FILE.mlt [FILE.mlt ...]
+#   scripts/near_wall.sh [--spp N] [--size WxH] [--bin DIR] [--work DIR] [--render-args ARGS]
+#                        FILE.mlt [FILE.mlt ...]
 #
+# --render-args passes more options to each `view render` (e.g. "--bounce-feedback 0" for the
+# relighting without the bounce-light feedback); the references do not depend on them.
 # Defaults: 1,024 reference paths per pixel, 160x120, release binaries in target/release, work
 # files under target/near_wall (references are kept there and reused for the same size/spp).
 set -euo pipefail
@@ -14,18 +17,20 @@ spp=1024
 size=160x120
 bin=target/release
 work=target/near_wall
+render_args=""
 while [ $# -gt 0 ]; do
     case "$1" in
         --spp) spp="$2"; shift 2 ;;
         --size) size="$2"; shift 2 ;;
         --bin) bin="$2"; shift 2 ;;
         --work) work="$2"; shift 2 ;;
+        --render-args) render_args="$2"; shift 2 ;;
         -*) echo "near_wall: unknown option $1" >&2; exit 2 ;;
         *) break ;;
     esac
 done
 if [ $# -eq 0 ]; then
-    echo "usage: scripts/near_wall.sh [--spp N] [--size WxH] [--bin DIR] [--work DIR] FILE.mlt..." >&2
+    echo "usage: scripts/near_wall.sh [--spp N] [--size WxH] [--bin DIR] [--work DIR] [--render-args ARGS] FILE.mlt..." >&2
     exit 2
 fi
 for f in "$@"; do
@@ -64,7 +69,9 @@ for entry in "${positions[@]}"; do
     noise=""
     for f in "$@"; do
         out="$work/$(basename "$f" .mlt)_$tag"
-        "$view" render "$f" --out "$out" --width "$w" --height "$h" --spp 4 --light-pos "$pos" >/dev/null 2>>"$work/log"
+        # shellcheck disable=SC2086 # the extra options split into words on purpose
+        "$view" render "$f" --out "$out" --width "$w" --height "$h" --spp 4 --light-pos "$pos" \
+            $render_args >/dev/null 2>>"$work/log"
         read -r rmse ratio noise < <("$view" compare "$ref" "$out" --json |
             jq -r '.indirect | "\(.relative_rmse) \(.ratio_of_means) \(.noise_relative_rmse)"')
         printf ' | %-32s' "$(printf '%.4f / %.4f' "$rmse" "$ratio")"

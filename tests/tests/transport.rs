@@ -6,13 +6,14 @@ use mlt_bake::{BakeOptions, Silent};
 use mlt_format::pull_push::pull_push;
 use mlt_format::shepard::MIN_WEIGHT_SUM;
 use mlt_format::{BakedFile, WriteOptions};
-use mlt_relight::FineBounceOp;
+use mlt_relight::{BounceFeedbackOp, FineBounceOp, PullPushOp, ReceiverLinks};
 use mlt_tests::{bake_with, surface_samples};
 
 /// Bakes the closed sphere, lights it with a point light of intensity 1 at the centre
 /// (direct irradiance I / R^2 everywhere), applies S from the written file (then, with
-/// `fine`, the relighter's finer-receiver bounces) and returns the indirect irradiance
-/// (n . vector irradiance) at surface points, per colour channel.
+/// `fine`, the relighter's finer-receiver bounces, and `feedback` steps of its bounce-light
+/// feedback) and returns the indirect irradiance (n . vector irradiance) at surface points,
+/// per colour channel.
 fn sphere_indirect(
     albedo: f32,
     radius: f32,
@@ -21,6 +22,21 @@ fn sphere_indirect(
     all_receivers: bool,
     fine: bool,
 ) -> Vec<[f32; 3]> {
+    sphere_relit(albedo, radius, bounces, epsilon, all_receivers, fine, 0).0
+}
+
+/// [`sphere_indirect`] with `feedback` steps of the bounce-light feedback after the fine
+/// bounces; also returns the fixed point's residual at the level-0 receivers (largest
+/// `|i_0 - S_0 (e + d(i))|` over the largest `|i_0|`).
+fn sphere_relit(
+    albedo: f32,
+    radius: f32,
+    bounces: u32,
+    epsilon: f32,
+    all_receivers: bool,
+    fine: bool,
+    feedback: u32,
+) -> (Vec<[f32; 3]>, f32) {
     let spec = format!("builtin:sphere?albedo={albedo}&radius={radius}");
     let out = bake_with(
         &spec,
@@ -56,16 +72,40 @@ fn sphere_indirect(
             FineBounceOp::build(&ib, links).apply(&mut i);
         }
     }
+    let mut residual = 0.0;
+    if feedback > 0 {
+        let senders = 2;
+        let op = BounceFeedbackOp::build(&ib, links, senders);
+        let pp = PullPushOp::build(&ib, senders);
+        let fine_op = fine.then(|| FineBounceOp::build(&ib, links));
+        let s = ReceiverLinks::build(links);
+        op.apply(&s, &pp, fine_op.as_ref(), feedback, 0.0, &mut i);
+        // The fixed point at level 0: i_0 = (S (e + d(i)))_0.
+        let mut e2 = e.clone();
+        for (a, b) in e2.iter_mut().zip(op.correction(&pp, &i)) {
+            *a += b;
+        }
+        let mut again = vec![0.0f32; i.len()];
+        links.apply(&e2, 0.0, &mut again);
+        let n0 = ib.basis.level_range(0).len() * 9;
+        let scale = i[..n0].iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        residual = i[..n0]
+            .iter()
+            .zip(&again[..n0])
+            .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()))
+            / scale;
+    }
     let scene = mlt_scenes::load_scene(&spec).unwrap();
     let caster = scene.build_caster();
-    surface_samples(caster.as_ref(), Vec3::ZERO, 500)
+    let values = surface_samples(caster.as_ref(), Vec3::ZERO, 500)
         .into_iter()
         .map(|(x, n)| {
             let mut v = [0.0f32; 9];
             ib.reconstruct(&i, 9, 0..ib.levels(), x.to_array(), n.to_array(), &mut v);
             std::array::from_fn(|c| n.x * v[3 * c] + n.y * v[3 * c + 1] + n.z * v[3 * c + 2])
         })
-        .collect()
+        .collect();
+    (values, residual)
 }
 
 /// Largest relative deviation from `expected` over all points and channels, and the mean.
@@ -149,6 +189,30 @@ fn fine_bounces_take_back_what_coarsest_only_bounces_lose() {
     let one = sphere_indirect(0.5, radius, 1, 1e-5, false, true);
     let (w1, _) = deviation(&one, 0.5 / (radius * radius));
     assert!(w1 < 0.02, "{w1}");
+}
+
+#[test]
+fn bounce_feedback_converges_to_its_fixed_point_without_adding_light_twice() {
+    // On the sphere lit from its centre the bounce light is uniform: the projection of its
+    // reconstruction is the level-0 emission the bake's chain already carries, so the
+    // feedback's correction is small and must not add any bounce a second time (which would
+    // put the mean 12 % or more over). Its steps form a geometric series: after 12 of them
+    // the level-0 receivers satisfy i_0 = S_0 (e + d(i)).
+    let radius = 2.0;
+    let expected = 0.25f32;
+    let (one, r1) = sphere_relit(0.5, radius, 8, 1e-5, false, true, 1);
+    let (w1, m1) = deviation(&one, expected);
+    let (many, r12) = sphere_relit(0.5, radius, 8, 1e-5, false, true, 12);
+    let (w12, m12) = deviation(&many, expected);
+    eprintln!(
+        "feedback: 1 step mean {m1:.5} (worst {w1:.4}, residual {r1:.2e}), 12 steps mean {m12:.5} (worst {w12:.4}, residual {r12:.2e}); expected {expected:.5}"
+    );
+    for (m, w) in [(m1, w1), (m12, w12)] {
+        assert!((m / expected as f64 - 1.0).abs() < 0.01, "mean {m}");
+        assert!(w < 0.03, "worst deviation {w}");
+    }
+    assert!(r12 < 1e-4, "not at the fixed point after 12 steps: {r12}");
+    assert!(r12 < r1, "the steps do not converge: {r1} -> {r12}");
 }
 
 #[test]

@@ -56,6 +56,8 @@ pub struct CpuMedians {
     pub direct: f64,
     pub project: f64,
     pub transport: f64,
+    /// The bounce-light feedback after `S e` (0 when off).
+    pub feedback: f64,
     pub flatten: f64,
     pub total: f64,
 }
@@ -179,8 +181,9 @@ pub fn render(
         direct: m(&|t| t.direct_ms),
         project: m(&|t| t.project_ms),
         transport: m(&|t| t.transport_ms),
+        feedback: m(&|t| t.feedback_ms),
         flatten: m(&|t| t.flatten_ms),
-        total: m(&|t| t.direct_ms + t.project_ms + t.transport_ms + t.flatten_ms),
+        total: m(&|t| t.direct_ms + t.project_ms + t.transport_ms + t.feedback_ms + t.flatten_ms),
     };
     let g = |f: &dyn Fn(&RenderTimes) -> f64| median(gpu_times.iter().map(f).collect());
     let gpu_median_ms = GpuMedians {

@@ -295,13 +295,14 @@ impl App<'_> {
             s.frame_times.clear();
             let t = &s.stage;
             s.window.set_title(&format!(
-                "{} | {:.1} fps | {} | relight: direct {:.1} + pull-push {:.1} + S e {:.1} + flatten {:.1} ms | {} splats",
+                "{} | {:.1} fps | {} | relight: direct {:.1} + pull-push {:.1} + S e {:.1} + feedback {:.1} + flatten {:.1} ms | {} splats",
                 self.setup.title,
                 1.0 / mean.max(1e-9),
                 s.mode.name(),
                 t.direct_ms,
                 t.project_ms,
                 t.transport_ms,
+                t.feedback_ms,
                 t.flatten_ms,
                 times.splatted_points
             ));

@@ -18,7 +18,10 @@
 //!    weights precomputed ([`PullPushOp`]);
 //! 3. `i = S e`, receiver-major in full precision ([`ReceiverLinks`]), skipping senders whose
 //!    light is negligible; then, when [`CpuRelighter::fine_bounces`] is set, the finer
-//!    receivers' bounces 2 and later from the level-0 coefficients ([`FineBounceOp`]);
+//!    receivers' bounces 2 and later from the level-0 coefficients ([`FineBounceOp`]), and,
+//!    with [`CpuRelighter::bounce_feedback`], the finer receivers' bounce light re-emitted
+//!    through `S`'s level-0 rows ([`BounceFeedbackOp`]: `i` as the fixed point of
+//!    `i = S (e + P-dagger (n . R i) - y(i))`);
 //! 4. flattening of `i` to the flat basis (section 4.1: one level on the points the solution
 //!    needs, [`FlatBasis`]) by a precomputed sparse operator ([`FlattenOp`], one row per flat
 //!    point) that holds only the columns of receivers with links, then one sharpening step
@@ -37,6 +40,7 @@ use mlt_scenes::RayCaster;
 use rayon::prelude::*;
 use serde::Serialize;
 
+use crate::bounce_feedback::BounceFeedbackOp;
 use crate::error::RelightError;
 use crate::fine_bounce::FineBounceOp;
 use crate::flatten_op::{FlattenOp, FlattenScratch, SharpenOp, SharpenScratch};
@@ -74,6 +78,10 @@ pub struct LoadStats {
     /// bytes.
     pub fine_bounce_links: usize,
     pub fine_bounce_bytes: usize,
+    /// Entries of the bounce-light feedback's reconstruction at the sender points, and their
+    /// heap bytes ([`BounceFeedbackOp`]; it applies the level-0 rows of the links above).
+    pub feedback_entries: usize,
+    pub feedback_bytes: usize,
     /// Sender points that cast shadow rays (the others are pulled from their children).
     pub direct_points: usize,
     /// Whether the file stores each level's points in Morton order (as the bake writes them);
@@ -94,6 +102,7 @@ pub struct CpuRelighter<'a> {
     support: SupportAverage<'a>,
     receiver_links: ReceiverLinks,
     fine_bounce: FineBounceOp,
+    feedback: BounceFeedbackOp,
     /// The flat basis the frames' flat coefficients belong to.
     flat: FlatBasis,
     /// `None` only if the operator is too large for 32-bit offsets: then
@@ -126,6 +135,11 @@ pub struct CpuRelighter<'a> {
     /// [`FineBounceOp`]). Off by default: set it for a file whose `S` computed them on the
     /// coarsest receivers only ([`FineBounceOp::applies_to`] on its transport metadata).
     pub fine_bounces: bool,
+    /// Steps of the bounce-light feedback after step 3 ([`BounceFeedbackOp`]): the finer
+    /// receivers' bounce light re-emitted through `S`'s level-0 rows. 0 (the default) leaves
+    /// it out; set it (1 is enough) for a file whose `S` chained its bounces through the
+    /// coarsest receivers ([`FineBounceOp::applies_to`]).
+    pub bounce_feedback: u32,
     frame: Frame,
     last: Option<Light>,
 }
@@ -158,12 +172,17 @@ impl<'a> CpuRelighter<'a> {
         let sender_levels = sender_levels.min(ib.levels());
         let flat_stored = stored.is_some();
         let (
-            (pull_push, (receiver_links, fine_bounce)),
+            ((pull_push, feedback), (receiver_links, fine_bounce)),
             (flat, (flatten_op, sharpen_op), flatten_build_ms),
         ) = rayon::join(
             || {
                 rayon::join(
-                    || PullPushOp::build(ib, sender_levels),
+                    || {
+                        rayon::join(
+                            || PullPushOp::build(ib, sender_levels),
+                            || BounceFeedbackOp::build(ib, links, sender_levels),
+                        )
+                    },
                     || {
                         rayon::join(
                             || ReceiverLinks::build(links),
@@ -207,6 +226,8 @@ impl<'a> CpuRelighter<'a> {
             links_bytes: receiver_links.bytes(),
             fine_bounce_links: fine_bounce.link_count(),
             fine_bounce_bytes: fine_bounce.bytes(),
+            feedback_entries: feedback.entries(),
+            feedback_bytes: feedback.bytes(),
             direct_points: sample_used.iter().filter(|u| **u).count(),
             points_in_morton_order: flatten_op.as_ref().is_some_and(FlattenOp::in_point_order),
         };
@@ -221,6 +242,7 @@ impl<'a> CpuRelighter<'a> {
             support: SupportAverage::new(ib, pull_push_points(ib, sender_levels)),
             receiver_links,
             fine_bounce,
+            feedback,
             flat,
             flatten_op,
             flatten_scratch: FlattenScratch::default(),
@@ -233,6 +255,7 @@ impl<'a> CpuRelighter<'a> {
             flatten_on_cpu: true,
             sharpen: true,
             fine_bounces: false,
+            bounce_feedback: 0,
             frame: Frame::default(),
             last: None,
         })
@@ -452,6 +475,20 @@ impl Relight for CpuRelighter<'_> {
             self.fine_bounce.apply(&mut i);
         }
         times.transport_ms = t.elapsed().as_secs_f64() * 1e3;
+
+        let t = Instant::now();
+        if self.bounce_feedback > 0 && self.links.receivers.to_native() as usize * LINK_DIM == n {
+            let fine = self.fine_bounces.then_some(&self.fine_bounce);
+            self.feedback.apply(
+                &self.receiver_links,
+                &self.pull_push,
+                fine,
+                self.bounce_feedback,
+                threshold,
+                &mut i,
+            );
+        }
+        times.feedback_ms = t.elapsed().as_secs_f64() * 1e3;
 
         let t = Instant::now();
         match &self.flatten_op {

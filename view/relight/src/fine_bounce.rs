@@ -73,15 +73,29 @@ impl FineBounceOp {
     /// `i_r += sum_j T_rj (n_j . i_j)` over level-0 points `j`. The same bits for any thread
     /// count. Panics unless `i` holds 9 floats per receiver of the links.
     pub fn apply(&self, i: &mut [f32]) {
-        let mut y = vec![0.0f32; 3 * self.coarsest];
-        for (j, n) in self.normals.iter().enumerate() {
-            for c in 0..3 {
-                let v = &i[j * LINK_DIM + 3 * c..j * LINK_DIM + 3 * c + 3];
-                y[3 * j + c] = n[0] * v[0] + n[1] * v[1] + n[2] * v[2];
-            }
-        }
+        let y = self.level0_emission(i);
         // Receivers of these links are above level 0, so the level-0 part of `i` read above
         // is not written.
         self.links.apply_add(&y, 0.0, i);
+    }
+
+    /// [`FineBounceOp::apply`] with the level-0 coefficients taken from `level0` (9 floats per
+    /// level-0 point) instead of from `i`: the finer receivers' next bounces of light added at
+    /// level 0 after `S e` (as [`crate::BounceFeedbackOp`] adds it).
+    pub fn apply_from(&self, level0: &[f32], i: &mut [f32]) {
+        let y = self.level0_emission(level0);
+        self.links.apply_add(&y, 0.0, i);
+    }
+
+    /// `y_j = n_j . v_j` per colour channel over the level-0 points of `v` (9 floats each).
+    fn level0_emission(&self, v: &[f32]) -> Vec<f32> {
+        let mut y = vec![0.0f32; 3 * self.coarsest];
+        for (j, n) in self.normals.iter().enumerate() {
+            for c in 0..3 {
+                let a = &v[j * LINK_DIM + 3 * c..j * LINK_DIM + 3 * c + 3];
+                y[3 * j + c] = n[0] * a[0] + n[1] * a[1] + n[2] * a[2];
+            }
+        }
+        y
     }
 }

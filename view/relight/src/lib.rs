@@ -12,12 +12,16 @@
 //! - [`receiver_links`]: `i = S e` receiver-major in full precision (sections 3.1-3.3);
 //! - [`fine_bounce`]: bounces 2 and later at the finer receivers, which the bake leaves to
 //!   the coarsest level, chained per frame through the level-0 coefficients of `S e`;
+//! - [`bounce_feedback`]: the finer receivers' bounce light re-emitted through `S`'s level-0
+//!   rows, the fixed point `i = S (e + P-dagger (n . R i) - y(i))` that the bake's chain of
+//!   bounces through the coarsest receivers falls short of;
 //! - [`flatten_op`]: the sparse flattening operator (section 4.1), whose packed arrays a GPU
 //!   compute pass can also apply ([`flatten_op::FlattenOp::parts`]).
 //!
 //! Each operator gives the same bits for any rayon thread count. The file, the basis and the
 //! reference (per-query) versions of these operators are in `mlt-format`.
 
+pub mod bounce_feedback;
 pub mod cpu;
 pub mod error;
 pub mod fine_bounce;
@@ -28,6 +32,7 @@ pub mod receiver_links;
 pub mod relight;
 pub mod support_average;
 
+pub use bounce_feedback::BounceFeedbackOp;
 pub use cpu::{CpuRelighter, LoadStats};
 pub use error::RelightError;
 pub use fine_bounce::FineBounceOp;

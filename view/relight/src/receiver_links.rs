@@ -128,7 +128,16 @@ impl ReceiverLinks {
     ///
     /// Panics unless `e.len() >= 3 * senders` and `i.len() == 9 * receivers`.
     pub fn apply(&self, e: &[f32], threshold: f32, i: &mut [f32]) -> usize {
-        self.apply_impl::<false>(e, threshold, i)
+        self.apply_impl::<false>(e, threshold, self.receivers as usize, i)
+    }
+
+    /// [`ReceiverLinks::apply`] on the rows of the first `m` receivers only (points `0..m`,
+    /// whose rows come first): `i` holds `9 m` floats and is overwritten; the same bits as
+    /// those rows of [`ReceiverLinks::apply`]. Panics unless `i.len() == 9 m` and `m` is at
+    /// most the number of receivers.
+    pub fn apply_first(&self, e: &[f32], threshold: f32, m: usize, i: &mut [f32]) -> usize {
+        assert!(m <= self.receivers as usize);
+        self.apply_impl::<false>(e, threshold, m, i)
     }
 
     /// `i += S e` over the receivers with links (the others are left as they are), each
@@ -136,12 +145,18 @@ impl ReceiverLinks {
     /// [`ArchivedLinks::apply`] into a zeroed vector, added to `i`. `e` needs entries only
     /// for the senders held. Returns the number of senders used.
     pub fn apply_add(&self, e: &[f32], threshold: f32, i: &mut [f32]) -> usize {
-        self.apply_impl::<true>(e, threshold, i)
+        self.apply_impl::<true>(e, threshold, self.receivers as usize, i)
     }
 
-    fn apply_impl<const ADD: bool>(&self, e: &[f32], threshold: f32, i: &mut [f32]) -> usize {
+    /// `i (+)= S e` over the rows of the receivers `0..n`.
+    fn apply_impl<const ADD: bool>(
+        &self,
+        e: &[f32],
+        threshold: f32,
+        n: usize,
+        i: &mut [f32],
+    ) -> usize {
         use rayon::prelude::*;
-        let n = self.receivers as usize;
         assert_eq!(i.len(), n * LINK_DIM);
         let mut used = 0;
         // Each stored sender's scaled light, repeated per vector component, so that a link
@@ -163,7 +178,8 @@ impl ReceiverLinks {
             .collect();
         // Chunks of receivers own disjoint, consecutive ranges of `i` (receivers ascend): from
         // their first receiver to the next chunk's first, the first chunk from point 0.
-        let receivers = &self.receiver_ids;
+        let rows = self.receiver_ids.partition_point(|&r| (r as usize) < n);
+        let receivers = &self.receiver_ids[..rows];
         let chunks = receivers.len().div_ceil(RECEIVER_CHUNK);
         let mut parts = Vec::with_capacity(chunks.max(1));
         let mut rest = i;
@@ -189,10 +205,10 @@ impl ReceiverLinks {
             if avx2 {
                 // SAFETY: this CPU has AVX2 (checked above), the only requirement for calling
                 // a function compiled with it.
-                unsafe { self.chunk_avx2::<ADD>(&w, c, first, out) };
+                unsafe { self.chunk_avx2::<ADD>(&w, c, rows, first, out) };
                 return;
             }
-            self.chunk::<ADD>(&w, c, first, out);
+            self.chunk::<ADD>(&w, c, rows, first, out);
         });
         used
     }
@@ -205,19 +221,21 @@ impl ReceiverLinks {
         &self,
         w: &[[f32; LINK_DIM]],
         c: usize,
+        rows: usize,
         first: usize,
         out: &mut [f32],
     ) {
-        self.chunk::<ADD>(w, c, first, out);
+        self.chunk::<ADD>(w, c, rows, first, out);
     }
 
-    /// The receivers of chunk `c` into `out` (added to it with `ADD`), which starts at point
-    /// `first`.
+    /// The receivers of chunk `c` (of the first `rows` linked receivers) into `out` (added
+    /// to it with `ADD`), which starts at point `first`.
     #[inline(always)]
     fn chunk<const ADD: bool>(
         &self,
         w: &[[f32; LINK_DIM]],
         c: usize,
+        rows: usize,
         first: usize,
         out: &mut [f32],
     ) {
@@ -225,7 +243,7 @@ impl ReceiverLinks {
         if !ADD {
             out.fill(0.0);
         }
-        let qs = c * RECEIVER_CHUNK..((c + 1) * RECEIVER_CHUNK).min(receivers.len());
+        let qs = c * RECEIVER_CHUNK..((c + 1) * RECEIVER_CHUNK).min(rows);
         for q in qs {
             let r = receivers[q] as usize - first;
             let (a, b) = (self.offsets[q] as usize, self.offsets[q + 1] as usize);
@@ -301,6 +319,22 @@ mod tests {
             assert_eq!(rl.apply(e, threshold, &mut got), senders);
             assert_eq!(bits(&got), bits(&want));
             assert!(got[12 * 9..].iter().all(|&x| x == 0.0));
+        }
+    }
+
+    #[test]
+    fn the_first_rows_alone_give_the_bits_of_the_full_product() {
+        let bytes = rkyv::to_bytes::<rancor::Error>(&sample_links()).unwrap();
+        let a = rkyv::access::<ArchivedLinks, rancor::Error>(&bytes).unwrap();
+        a.validate().unwrap();
+        let rl = ReceiverLinks::build(a);
+        let e: Vec<f32> = (0..18).map(|k| 0.3 + (k as f32 * 1.3).cos()).collect();
+        let mut full = vec![0.0f32; 14 * 9];
+        rl.apply(&e, 0.0, &mut full);
+        for m in [0, 1, 5, 12, 14] {
+            let mut first = vec![f32::NAN; m * 9];
+            assert_eq!(rl.apply_first(&e, 0.0, m, &mut first), 6);
+            assert_eq!(bits(&first), bits(&full[..m * 9]), "first {m}");
         }
     }
 

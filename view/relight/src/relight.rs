@@ -15,6 +15,8 @@ pub struct StageTimes {
     pub direct_ms: f64,
     pub project_ms: f64,
     pub transport_ms: f64,
+    /// The bounce-light feedback after `S e` (zero when off).
+    pub feedback_ms: f64,
     pub flatten_ms: f64,
 }
 

@@ -89,6 +89,13 @@ pub struct RelightArgs {
     /// level-0 coefficients of `S e`, through the finer receivers' links to level-0 senders.
     #[arg(long)]
     pub no_fine_bounces: bool,
+    /// Steps of the bounce-light feedback: the finer receivers' bounce light, which the
+    /// bake's chain of bounces through the coarsest receivers leaves out, re-emitted each
+    /// frame through the level-0 rows of `S` (the indirect light as the fixed point of
+    /// `i = S (e + P-dagger (n . R i) - y(i))`). 0 turns it off (the paper's relighting);
+    /// files whose bounces ran on every receiver, or with one bounce, never get it.
+    #[arg(long, default_value_t = 1, value_name = "STEPS")]
+    pub bounce_feedback: u32,
     /// For experiments: build the flat basis with this neighbour count and radius factor
     /// (`K,F`: each flat radius F times the distance to the K-th nearest flat point; `K,F,H,R`
     /// also sets the hole weight and reach) instead of reading the file's or building it by

@@ -94,6 +94,11 @@ pub fn with_viewing<T>(args: &BakedArgs, f: impl FnOnce(Viewing<'_>) -> Result<T
     relighter.support_average = !relight.point_samples;
     relighter.sharpen = !relight.no_sharpen;
     relighter.fine_bounces = !relight.no_fine_bounces && FineBounceOp::applies_to(&tm);
+    relighter.bounce_feedback = if FineBounceOp::applies_to(&tm) {
+        relight.bounce_feedback
+    } else {
+        0
+    };
     if relighter.support_average {
         relighter.build_support_tables();
     }

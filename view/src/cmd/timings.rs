@@ -44,7 +44,7 @@ pub fn run(args: &TimingsArgs) -> Result<()> {
 fn relight_frames(args: &TimingsArgs, v: &mut Viewing<'_>) -> serde_json::Value {
     let n = args.frames;
     let path_radius = v.path_radius();
-    let mut per_stage: [Vec<f64>; 4] = Default::default();
+    let mut per_stage: [Vec<f64>; 5] = Default::default();
     let mut senders = Vec::new();
     let mut rays = Vec::new();
     let mut averaged = Vec::new();
@@ -55,14 +55,15 @@ fn relight_frames(args: &TimingsArgs, v: &mut Viewing<'_>) -> serde_json::Value 
         per_stage[0].push(t.direct_ms);
         per_stage[1].push(t.project_ms);
         per_stage[2].push(t.transport_ms);
-        per_stage[3].push(t.flatten_ms);
+        per_stage[3].push(t.feedback_ms);
+        per_stage[4].push(t.flatten_ms);
         senders.push(frame.senders_used as f64);
         rays.push(frame.shadow_rays as f64);
         averaged.push(frame.averaged_points as f64);
     }
-    let [d, p, s, fl] = per_stage.map(median);
+    let [d, p, s, fb, fl] = per_stage.map(median);
     eprintln!(
-        "median per frame over {n} frames with a moving light: direct {d:.1} ms, pull-push {p:.1} ms, S e {s:.1} ms, flatten {fl:.1} ms"
+        "median per frame over {n} frames with a moving light: direct {d:.1} ms, pull-push {p:.1} ms, S e {s:.1} ms, bounce feedback {fb:.1} ms, flatten {fl:.1} ms"
     );
     serde_json::json!({
         "file": v.path.display().to_string(),
@@ -71,12 +72,13 @@ fn relight_frames(args: &TimingsArgs, v: &mut Viewing<'_>) -> serde_json::Value 
         "shadow_rays": args.baked.relight.shadow_rays,
         "adaptive_shadow_rays": !args.baked.relight.all_shadow_rays,
         "threads": rayon::current_num_threads(),
-        "median_ms": {"direct": d, "project": p, "transport": s, "flatten": fl, "total": d + p + s + fl},
+        "median_ms": {"direct": d, "project": p, "transport": s, "feedback": fb, "flatten": fl, "total": d + p + s + fb + fl},
         "median_senders_used": median(senders),
         "median_shadow_rays_cast": median(rays),
         "support_average": !args.baked.relight.point_samples,
         "sharpen": !args.baked.relight.no_sharpen,
         "fine_bounces": v.relighter.fine_bounces,
+        "bounce_feedback_steps": v.relighter.bounce_feedback,
         "median_averaged_points": median(averaged),
         "load": v.relighter.load_stats(),
         "gpu": "not used: CPU relighting only (`view render FILE --out DIR` renders)",
