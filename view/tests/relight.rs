@@ -363,3 +363,71 @@ fn adaptive_shadow_rays_only_refine_the_penumbra() {
         "{changed} points moved {moved} of {total}"
     );
 }
+
+/// With the fine bounces and the bounce-light feedback on (as the viewer relights a file whose
+/// bounces ran on the coarsest receivers), the frame's `i` is `S e`, then the fine bounces, then
+/// one feedback step, bit for bit as the operators give them one by one; the same bits for 1
+/// and 2 threads; the step changes only what it should: the level-0 receivers, and the finer
+/// ones only by the fine bounces of that change.
+#[test]
+fn the_bounce_feedback_step_is_its_operators_in_order_and_thread_independent() {
+    use mlt_relight::{BounceFeedbackOp, FineBounceOp, PullPushOp, ReceiverLinks};
+    let (_d, file, ib, sender_levels, caster) = small_cornell("feedback", 64);
+    let lb = file.links_bytes().unwrap().unwrap();
+    let links = file.access_links(&lb).unwrap();
+    let tm = file.transport_meta().unwrap().unwrap();
+    assert!(FineBounceOp::applies_to(&tm), "{:?}", tm.params);
+    let light = Light::point(Vec3::new(0.278, 0.5, 0.28), [0.3, 0.25, 0.2]).unwrap();
+    let run = |threads: usize, steps: u32| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, 4)
+                .expect("relighting operators");
+            r.fine_bounces = true;
+            r.bounce_feedback = steps;
+            r.relight(&light).clone()
+        })
+    };
+    let frame = run(2, 1);
+    assert_eq!(bits(&frame.i), bits(&run(1, 1).i));
+    assert_eq!(bits(&frame.flat), bits(&run(1, 1).flat));
+
+    let max_e = frame.e.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    let threshold = 1e-4 * max_e;
+    let s = ReceiverLinks::build(links);
+    let mut i = vec![0.0f32; ib.basis.len() * LINK_DIM];
+    s.apply(&frame.e, threshold, &mut i);
+    let fine = FineBounceOp::build(&ib, links);
+    fine.apply(&mut i);
+    let without = i.clone();
+    let pp = PullPushOp::build(&ib, sender_levels);
+    BounceFeedbackOp::build(&ib, links, sender_levels).apply(
+        &s,
+        &pp,
+        Some(&fine),
+        1,
+        threshold,
+        &mut i,
+    );
+    assert_eq!(bits(&frame.i), bits(&i));
+    assert_eq!(bits(&run(2, 0).i), bits(&without));
+
+    // Level 0 gets the step's light directly; the finer receivers through their links to
+    // level-0 senders only.
+    let n0 = ib.basis.level_range(0).len() * LINK_DIM;
+    let sum = |v: &[f32]| v.iter().map(|&x| f64::from(x)).sum::<f64>();
+    assert!(frame.i[..n0] != without[..n0]);
+    let added = sum(&frame.i) - sum(&without);
+    assert!(added.abs() > 1e-6 * sum(&without).abs(), "{added}");
+    let mut finer_only = without.clone();
+    finer_only[..n0].copy_from_slice(&frame.i[..n0]);
+    let level0: Vec<f32> = (0..n0).map(|k| frame.i[k] - without[k]).collect();
+    fine.apply_from(&level0, &mut finer_only);
+    let scale = frame.i.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    for (k, (a, b)) in frame.i.iter().zip(&finer_only).enumerate().skip(n0) {
+        assert!((a - b).abs() <= 1e-5 * scale, "{k}: {a} vs {b}");
+    }
+}

@@ -18,7 +18,7 @@ use glam::Vec3;
 use mlt_format::flatten::flatten;
 use mlt_format::links::LINK_DIM;
 use mlt_format::pull_push::pull_push_levels;
-use mlt_relight::{CpuRelighter, Light, Relight};
+use mlt_relight::{CpuRelighter, FineBounceOp, Light, Relight};
 use mlt_scenes::RayCaster;
 
 /// The relighter and the lights of a circle of frames.
@@ -44,8 +44,11 @@ fn load(frames: usize) -> anyhow::Result<Setup> {
     let caster: &'static dyn RayCaster = Box::leak(scene.build_caster());
     let light = Light::from_info(&meta.light)?;
     let sender_levels = tm.params.sender_levels as usize;
-    let relighter = CpuRelighter::new(&baked.ib, baked.links, caster, sender_levels, 8)
+    let mut relighter = CpuRelighter::new(&baked.ib, baked.links, caster, sender_levels, 8)
         .expect("relighting operators");
+    // As the viewer relights this file (its defaults).
+    relighter.fine_bounces = FineBounceOp::applies_to(&tm);
+    relighter.bounce_feedback = u32::from(relighter.fine_bounces);
     let (lo, hi) = (
         Vec3::from(meta.scene.bounds_min),
         Vec3::from(meta.scene.bounds_max),
@@ -92,14 +95,15 @@ fn figures(s: &Setup) {
     let ib = &s.baked.ib;
     let mut r = s.relighter.lock().unwrap_or_else(|e| e.into_inner());
     eprintln!("load: {:?}", r.load_stats());
-    let mut t: [Vec<f64>; 4] = Default::default();
+    let mut t: [Vec<f64>; 5] = Default::default();
     let mut live = Vec::new();
     for light in &s.lights {
         let frame = r.relight(light);
         t[0].push(frame.times.direct_ms);
         t[1].push(frame.times.project_ms);
         t[2].push(frame.times.transport_ms);
-        t[3].push(frame.times.flatten_ms);
+        t[3].push(frame.times.feedback_ms);
+        t[4].push(frame.times.flatten_ms);
         live.push(
             frame
                 .i
@@ -114,13 +118,14 @@ fn figures(s: &Setup) {
     };
     let m: Vec<f64> = t.iter_mut().map(med).collect();
     eprintln!(
-        "median over {} frames: direct {:.2} ms, pull-push {:.3} ms, S e {:.2} ms, flatten \
-         {:.2} ms, total {:.2} ms; lit receivers {:?}",
+        "median over {} frames: direct {:.2} ms, pull-push {:.3} ms, S e {:.2} ms, bounce \
+         feedback {:.2} ms, flatten {:.2} ms, total {:.2} ms; lit receivers {:?}",
         s.lights.len(),
         m[0],
         m[1],
         m[2],
         m[3],
+        m[4],
         m.iter().sum::<f64>(),
         live.iter().min()
     );
