@@ -16,7 +16,7 @@
 //!    narrower than the spacing of the points keeps its flux.
 //! 2. pull-push projection onto the sender levels, `e = P-dagger E` (section 2.1), with the
 //!    weights precomputed ([`PullPushOp`]);
-//! 3. `i = S e`, receiver-major in full precision ([`ReceiverLinks`]), skipping senders whose
+//! 3. `i = S e`, receiver-major in `f32` arithmetic ([`ReceiverLinks`]), skipping senders whose
 //!    light is negligible; then, when [`CpuRelighter::fine_bounces`] is set, the finer
 //!    receivers' bounces 2 and later from the level-0 coefficients ([`FineBounceOp`]), and,
 //!    with [`CpuRelighter::bounce_feedback`], the finer receivers' bounce light re-emitted

@@ -9,7 +9,8 @@
 //!   sample of a light close to the surface;
 //! - [`pull_push_op`]: the pull-push projection `e = P-dagger E` (section 2.1) with precomputed
 //!   weights;
-//! - [`receiver_links`]: `i = S e` receiver-major in full precision (sections 3.1-3.3);
+//! - [`receiver_links`]: `i = S e` receiver-major, the file's half floats converted in the
+//!   product (sections 3.1-3.3);
 //! - [`fine_bounce`]: bounces 2 and later at the finer receivers, which the bake leaves to
 //!   the coarsest level, chained per frame through the level-0 coefficients of `S e`;
 //! - [`bounce_feedback`]: the finer receivers' bounce light re-emitted through `S`'s level-0
