@@ -84,7 +84,7 @@ pub struct RelightArgs {
     #[arg(long)]
     pub no_sharpen: bool,
     /// Leave the finer receivers with the first bounce only, as the bake's `S` has them (the
-    /// paper's relighting): by default, for a file whose bounces 2 and later were computed on
+    /// paper's relighting; also turns the bounce-light feedback off): by default, for a file whose bounces 2 and later were computed on
     /// the coarsest receivers, they are added at the finer receivers each frame from the
     /// level-0 coefficients of `S e`, through the finer receivers' links to level-0 senders.
     #[arg(long)]
@@ -92,9 +92,10 @@ pub struct RelightArgs {
     /// Steps of the bounce-light feedback: the finer receivers' bounce light, which the
     /// bake's chain of bounces through the coarsest receivers leaves out, re-emitted each
     /// frame through the level-0 rows of `S` (the indirect light as the fixed point of
-    /// `i = S (e + P-dagger (n . R i) - y(i))`). 0 turns it off (the paper's relighting);
-    /// files whose bounces ran on every receiver, or with one bounce, never get it. Each step
-    /// costs about one `S e`; a second moves the mean by under 1 %. At most 16.
+    /// `i = S (e + P-dagger (n . R i) - y(i))`). 0 turns it off; `--no-fine-bounces` turns
+    /// it off too (the paper's relighting), and files whose bounces ran on every receiver, or
+    /// with one bounce, never get it. Each step costs about one `S e`; a second moves the
+    /// mean by under 1 %. At most 16.
     #[arg(long, default_value_t = 1, value_name = "STEPS",
           value_parser = clap::value_parser!(u32).range(0..=16))]
     pub bounce_feedback: u32,

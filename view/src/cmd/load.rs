@@ -94,7 +94,9 @@ pub fn with_viewing<T>(args: &BakedArgs, f: impl FnOnce(Viewing<'_>) -> Result<T
     relighter.support_average = !relight.point_samples;
     relighter.sharpen = !relight.no_sharpen;
     relighter.fine_bounces = !relight.no_fine_bounces && FineBounceOp::applies_to(&tm);
-    relighter.bounce_feedback = if FineBounceOp::applies_to(&tm) {
+    // The feedback re-emits the light the fine bounces put at the finer receivers; without
+    // them (the paper's relighting) it is left out too.
+    relighter.bounce_feedback = if relighter.fine_bounces {
         relight.bounce_feedback
     } else {
         0
