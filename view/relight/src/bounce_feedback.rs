@@ -6,12 +6,14 @@
 //! X_{b-1}[j]`, the level-0 coefficient of the previous bounce at level-0 point `j`, used as
 //! the emission of the level-0 sender on that point. The light the surface actually re-emits
 //! is the whole hierarchical expansion of the previous bounce (Eq. 6), and its projection onto
-//! the senders differs from `y` twice over: the level-0 senders' coefficients of that
-//! projection are not the level-0 receivers' coefficients (the finer receivers hold a first
-//! bounce that sharpens the coarse one, and that detail does not average to zero), and the
-//! finer senders' coefficients, the detail itself, are never emitted at all. In a closed or
-//! bright room every later bounce then starts a little short, and the shortfall compounds
-//! (2 to 8 % of the indirect light in our references).
+//! the senders differs from `y` twice over. The level-0 senders' coefficients of that
+//! projection are not the level-0 receivers' coefficients: the level-0 reconstruction at a
+//! point, `sum_k B_k n_j . i_k`, falls short of `n_j . i_j` where the neighbours' vector
+//! irradiance turns away from the normal, and the finer receivers (their first bounce, and
+//! the later bounces [`FineBounceOp`] adds) hold the light that makes up for it and more.
+//! And the finer senders' coefficients, the detail itself, are never emitted at all. In a
+//! closed or bright room every later bounce then starts a little short, and the shortfall
+//! compounds (2 to 8 % of the indirect light in our references).
 //!
 //! Per frame the indirect light `i` is the fixed point of
 //!
@@ -27,10 +29,11 @@
 //! within about 1 % in our cases, a second moves it by under 1 point.
 //!
 //! Only the level-0 rows of `S` are applied to `d` (`S_0`, the first rows of the
-//! receiver-major [`ReceiverLinks`]): those rows carry every bounce; the finer receivers then get the added
-//! light's later bounces from the level-0 change through their links to level-0 senders, as
-//! [`FineBounceOp`] gives them for `S e`. Their first bounce of `d` (the rows of T) is left
-//! out: it is the smallest part of the correction and would cost a full product of `S`.
+//! receiver-major [`ReceiverLinks`]): those rows carry every bounce; the finer receivers then
+//! get the added light's later bounces from the level-0 change through their links to level-0
+//! senders, as [`FineBounceOp`] gives them for `S e`. Their first bounce of `d` (the rows of
+//! T) is left out: it is the smallest part of the correction and would cost a full product of
+//! `S`.
 //!
 //! `R` is precomputed once per file: one row per sender point, the normalised weights
 //! `B_k(x_s, n_s)` of every level's basis functions there (Eq. 2) that belong to receivers
@@ -157,9 +160,9 @@ impl BounceFeedbackOp {
     /// Runs `steps` steps of the fixed point on `i = S e`, `S` being `links` (with the finer
     /// receivers' later bounces already added when `fine` is given): each adds `S_0 d` of the
     /// previous step's change at the level-0 receivers and, through `fine`, that change's
-    /// later bounces at the finer ones. Senders whose correction is at most `threshold` in every channel are
-    /// skipped. The same bits for any thread count. Panics unless `i` holds 9 floats per
-    /// point of the basis this was built on.
+    /// later bounces at the finer ones. Senders whose correction is at most `threshold` in
+    /// every channel are skipped. The same bits for any thread count. Panics unless `i` holds
+    /// 9 floats per point of the basis this was built on.
     pub fn apply(
         &self,
         links: &ReceiverLinks,

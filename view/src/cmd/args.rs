@@ -84,9 +84,10 @@ pub struct RelightArgs {
     #[arg(long)]
     pub no_sharpen: bool,
     /// Leave the finer receivers with the first bounce only, as the bake's `S` has them (the
-    /// paper's relighting; also turns the bounce-light feedback off): by default, for a file whose bounces 2 and later were computed on
-    /// the coarsest receivers, they are added at the finer receivers each frame from the
-    /// level-0 coefficients of `S e`, through the finer receivers' links to level-0 senders.
+    /// paper's relighting; also turns the bounce-light feedback off): by default, for a file
+    /// whose bounces 2 and later were computed on the coarsest receivers, they are added at
+    /// the finer receivers each frame from the level-0 coefficients of `S e`, through the
+    /// finer receivers' links to level-0 senders.
     #[arg(long)]
     pub no_fine_bounces: bool,
     /// Steps of the bounce-light feedback: the finer receivers' bounce light, which the
