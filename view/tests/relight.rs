@@ -241,6 +241,15 @@ fn sharpened(fb: &FlatBasis, c: &[f32]) -> Vec<f32> {
     out
 }
 
+/// `f` run on a rayon pool of `threads` threads.
+fn with_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap()
+        .install(f)
+}
+
 #[test]
 fn precomputed_stages_match_the_reference_stages() {
     let (_d, file, ib, sender_levels, caster) = small_cornell("stages", 64);
@@ -250,11 +259,7 @@ fn precomputed_stages_match_the_reference_stages() {
     let light = Light::point(Vec3::new(0.278, 0.5, 0.28), [0.3, 0.25, 0.2]).unwrap();
 
     let run = |threads: usize| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
-        pool.install(|| {
+        with_threads(threads, || {
             let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, 4)
                 .expect("relighting operators");
             let samples = r.direct(&light);
@@ -379,11 +384,7 @@ fn the_bounce_feedback_step_is_its_operators_in_order_and_thread_independent() {
     assert!(FineBounceOp::applies_to(&tm), "{:?}", tm.params);
     let light = Light::point(Vec3::new(0.278, 0.5, 0.28), [0.3, 0.25, 0.2]).unwrap();
     let run = |threads: usize, steps: u32| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
-        pool.install(|| {
+        with_threads(threads, || {
             let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, 4)
                 .expect("relighting operators");
             r.fine_bounces = true;

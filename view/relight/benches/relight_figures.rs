@@ -18,7 +18,7 @@ use glam::Vec3;
 use mlt_format::flatten::flatten;
 use mlt_format::links::LINK_DIM;
 use mlt_format::pull_push::pull_push_levels;
-use mlt_relight::{CpuRelighter, FineBounceOp, Light, Relight};
+use mlt_relight::{CpuRelighter, Light, Relight};
 use mlt_scenes::RayCaster;
 
 /// The relighter and the lights of a circle of frames.
@@ -47,8 +47,7 @@ fn load(frames: usize) -> anyhow::Result<Setup> {
     let mut relighter = CpuRelighter::new(&baked.ib, baked.links, caster, sender_levels, 8)
         .expect("relighting operators");
     // As the viewer relights this file (its defaults).
-    relighter.fine_bounces = FineBounceOp::applies_to(&tm);
-    relighter.bounce_feedback = u32::from(relighter.fine_bounces);
+    relighter.use_bounce_corrections(&tm, 1);
     let (lo, hi) = (
         Vec3::from(meta.scene.bounds_min),
         Vec3::from(meta.scene.bounds_max),

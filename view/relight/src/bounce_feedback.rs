@@ -43,7 +43,7 @@ use mlt_format::links::{ArchivedLinks, LINK_DIM};
 use mlt_format::IndexedBasis;
 use rayon::prelude::*;
 
-use crate::fine_bounce::FineBounceOp;
+use crate::fine_bounce::{along_normal, FineBounceOp};
 use crate::pull_push_op::PullPushOp;
 use crate::receiver_links::ReceiverLinks;
 
@@ -139,19 +139,15 @@ impl BounceFeedbackOp {
                             acc[q] += w * vr[q];
                         }
                     }
-                    let n = self.normals[s];
-                    for ch in 0..3 {
-                        o[ch] =
-                            n[0] * acc[3 * ch] + n[1] * acc[3 * ch + 1] + n[2] * acc[3 * ch + 2];
-                    }
+                    o.copy_from_slice(&along_normal(self.normals[s], &acc));
                 }
             });
         pull_push.pull(&mut d, 3);
         pull_push.push(&mut d, 3);
         for (j, n) in self.normals[..self.coarsest].iter().enumerate() {
-            for ch in 0..3 {
-                let a = &v[j * LINK_DIM + 3 * ch..j * LINK_DIM + 3 * ch + 3];
-                d[3 * j + ch] -= n[0] * a[0] + n[1] * a[1] + n[2] * a[2];
+            let y = along_normal(*n, &v[j * LINK_DIM..]);
+            for (a, y) in d[3 * j..3 * j + 3].iter_mut().zip(y) {
+                *a -= y;
             }
         }
         d
@@ -173,13 +169,12 @@ impl BounceFeedbackOp {
         i: &mut [f32],
     ) {
         let n0 = self.coarsest * LINK_DIM;
+        // The previous step's change of `i`; `None` before the first step (the change is
+        // then `i = S e` itself).
         let mut change: Option<Vec<f32>> = None;
         let mut delta = vec![0.0f32; n0];
         for step in 0..steps {
-            let d = match &change {
-                None => self.correction(pull_push, i),
-                Some(c) => self.correction(pull_push, c),
-            };
+            let d = self.correction(pull_push, change.as_deref().unwrap_or(i));
             links.apply_first(&d, threshold, self.coarsest, &mut delta);
             for (a, b) in i[..n0].iter_mut().zip(&delta) {
                 *a += b;
@@ -194,9 +189,7 @@ impl BounceFeedbackOp {
             }
             // The change of this step, for the next: `delta` at level 0, the finer receivers'
             // later bounces of it above.
-            let mut c = change.take().unwrap_or_default();
-            c.clear();
-            c.resize(i.len(), 0.0);
+            let mut c = vec![0.0f32; i.len()];
             c[..n0].copy_from_slice(&delta);
             if let Some(fine) = fine {
                 fine.apply_from(&delta, &mut c);

@@ -35,6 +35,7 @@ use std::time::Instant;
 use glam::Vec3;
 use mlt_format::flat_basis::FlatBasis;
 use mlt_format::links::{ArchivedLinks, LINK_DIM};
+use mlt_format::meta::TransportMeta;
 use mlt_format::IndexedBasis;
 use mlt_scenes::RayCaster;
 use rayon::prelude::*;
@@ -261,6 +262,16 @@ impl<'a> CpuRelighter<'a> {
         })
     }
 
+    /// Turns on the per-frame corrections of a bake's chain of bounces through the coarsest
+    /// receivers, as the viewer relights a file with transport metadata `tm`: the fine
+    /// bounces where [`FineBounceOp::applies_to`] it, and with them `feedback_steps` steps of
+    /// the bounce-light feedback (which re-emits the light the fine bounces add). Both stay
+    /// off for other files.
+    pub fn use_bounce_corrections(&mut self, tm: &TransportMeta, feedback_steps: u32) {
+        self.fine_bounces = FineBounceOp::applies_to(tm);
+        self.bounce_feedback = if self.fine_bounces { feedback_steps } else { 0 };
+    }
+
     /// The precomputed flattening operator (absent only when too large for 32-bit offsets).
     pub fn flatten_op(&self) -> Option<&FlattenOp> {
         self.flatten_op.as_ref()
@@ -464,7 +475,9 @@ impl Relight for CpuRelighter<'_> {
         let t = Instant::now();
         let max_e = e.iter().fold(0.0f32, |m, v| m.max(v.abs()));
         let threshold = self.skip_fraction * max_e;
-        let used = if self.links.receivers.to_native() as usize * LINK_DIM == n {
+        // The bake writes one receiver per point; other files use the stored links.
+        let receiver_major = self.links.receivers.to_native() as usize * LINK_DIM == n;
+        let used = if receiver_major {
             self.receiver_links.apply(&e, threshold, &mut i)
         } else {
             // Fewer receivers than points (not written by the bake): the stored links.
@@ -477,7 +490,7 @@ impl Relight for CpuRelighter<'_> {
         times.transport_ms = t.elapsed().as_secs_f64() * 1e3;
 
         let t = Instant::now();
-        if self.bounce_feedback > 0 && self.links.receivers.to_native() as usize * LINK_DIM == n {
+        if self.bounce_feedback > 0 && receiver_major {
             let fine = self.fine_bounces.then_some(&self.fine_bounce);
             self.feedback.apply(
                 &self.receiver_links,

@@ -91,11 +91,16 @@ impl FineBounceOp {
     fn level0_emission(&self, v: &[f32]) -> Vec<f32> {
         let mut y = vec![0.0f32; 3 * self.coarsest];
         for (j, n) in self.normals.iter().enumerate() {
-            for c in 0..3 {
-                let a = &v[j * LINK_DIM + 3 * c..j * LINK_DIM + 3 * c + 3];
-                y[3 * j + c] = n[0] * a[0] + n[1] * a[1] + n[2] * a[2];
-            }
+            y[3 * j..3 * j + 3].copy_from_slice(&along_normal(*n, &v[j * LINK_DIM..]));
         }
         y
     }
+}
+
+/// The irradiance `n . v_c` per colour channel `c` of a point's vector irradiance `v` (its 9
+/// floats first in `v`, RGB-major): what the surface there receives, and re-emits as a
+/// sender's coefficient.
+#[inline]
+pub(crate) fn along_normal(n: [f32; 3], v: &[f32]) -> [f32; 3] {
+    std::array::from_fn(|c| n[0] * v[3 * c] + n[1] * v[3 * c + 1] + n[2] * v[3 * c + 2])
 }

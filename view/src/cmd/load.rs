@@ -11,7 +11,6 @@ use mlt_format::flat_section::StoredFlat;
 use mlt_format::links::ArchivedLinks;
 use mlt_format::meta::CameraInfo;
 use mlt_format::{BakedFile, IndexedBasis, Meta};
-use mlt_relight::FineBounceOp;
 use mlt_scenes::{RayCaster, Scene};
 use mlt_view::{Camera, CpuRelighter, Light};
 
@@ -93,14 +92,11 @@ pub fn with_viewing<T>(args: &BakedArgs, f: impl FnOnce(Viewing<'_>) -> Result<T
     relighter.adaptive_shadows = !relight.all_shadow_rays;
     relighter.support_average = !relight.point_samples;
     relighter.sharpen = !relight.no_sharpen;
-    relighter.fine_bounces = !relight.no_fine_bounces && FineBounceOp::applies_to(&tm);
-    // The feedback re-emits the light the fine bounces put at the finer receivers; without
-    // them (the paper's relighting) it is left out too.
-    relighter.bounce_feedback = if relighter.fine_bounces {
-        relight.bounce_feedback
-    } else {
-        0
-    };
+    // Without the fine bounces (the paper's relighting) the feedback, which re-emits their
+    // light, is left out too.
+    if !relight.no_fine_bounces {
+        relighter.use_bounce_corrections(&tm, relight.bounce_feedback);
+    }
     if relighter.support_average {
         relighter.build_support_tables();
     }

@@ -63,8 +63,7 @@ pub fn relight_file(path: &Path, spec: &str, light: impl FnOnce(Light) -> Light)
     )
     .expect("relighting operators");
     // As the viewer does for this file (view/src/cmd/load.rs).
-    relighter.fine_bounces = mlt_relight::FineBounceOp::applies_to(&tm);
-    relighter.bounce_feedback = u32::from(relighter.fine_bounces);
+    relighter.use_bounce_corrections(&tm, 1);
     let frame = relighter.relight(&light).clone();
     let flat = relighter.flat_basis().clone();
     drop(relighter);
