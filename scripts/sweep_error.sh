@@ -11,8 +11,9 @@
 #               docs/error_NAME_vs_{bake,frame}.png unless OUT_PREFIX is given)
 # Environment (defaults in brackets):
 #   SETTINGS    one setting per line, "LABEL|PAPER(0/1)|bake arguments"
-#               [the paper preset (4 bounces) at epsilon 0.1, 0.05, 0.025 (paper), 0.0125;
-#               gather rays 64; 5 receiver levels]
+#               [the default bake (converged), the paper preset (4 bounces), the default at
+#               epsilon 0.05 and 0.0125, the default with 5 receiver levels]
+#   ROWS        use only the first ROWS settings [all]
 #   LIGHTS      light positions x,y,z separated by spaces [the scene's light]
 #   WIDTH HEIGHT image size of the comparison [128 128]
 #   SPP         reference paths per pixel [512]
@@ -33,17 +34,19 @@ WIDTH=${WIDTH:-128}
 HEIGHT=${HEIGHT:-128}
 SPP=${SPP:-512}
 FRAMES=${FRAMES:-16}
-SETTINGS=${SETTINGS:-"eps 0.1|0|--preset paper --epsilon 0.1
-eps 0.05|0|--preset paper --epsilon 0.05
-eps 0.025|1|--preset paper --epsilon 0.025
-eps 0.0125|0|--preset paper --epsilon 0.0125
-eps 0.025, 64 rays|0|--preset paper --epsilon 0.025 --gather-rays 64
-eps 0.025, 5 levels|0|--preset paper --epsilon 0.025 --receiver-levels 5"}
+SETTINGS=${SETTINGS:-"default (converged)|0|
+paper preset|1|--preset paper
+default; epsilon 0.05|0|--epsilon 0.05
+default; epsilon 0.0125|0|--epsilon 0.0125
+default; 5 levels|0|--receiver-levels 5"}
+if [[ -n ${ROWS:-} ]]; then
+  SETTINGS=$(head -n "$ROWS" <<<"$SETTINGS")
+fi
 for b in bake view plot_sweep; do
   [[ -x $BIN/$b ]] || { echo "missing $BIN/$b: cargo build --release -p mlt-bake -p mlt-view -p mlt-plot" >&2; exit 1; }
 done
 mkdir -p "$WORK" "$(dirname "$OUT")"
-CMD="scripts/sweep_error.sh $SCENE $NAME (WIDTH=$WIDTH HEIGHT=$HEIGHT SPP=$SPP FRAMES=$FRAMES LIGHTS=\"${LIGHTS:-default}\")"
+CMD="scripts/sweep_error.sh $SCENE $NAME (WIDTH=$WIDTH HEIGHT=$HEIGHT SPP=$SPP FRAMES=$FRAMES LIGHTS=\"${LIGHTS:-default}\" ROWS=${ROWS:-all})"
 
 # 1. Bakes, file sizes and frame times.
 i=0
