@@ -125,7 +125,7 @@ MD=$OUT.md
   echo "${WIDTH}x${HEIGHT} pixels), on luminance, averaged over $nl light position(s): $LIGHTS."
   echo "Relative RMSE = RMS(test - ref) / mean(ref); mean rel. error over lit pixels (ref > 1 % of its mean);"
   echo "ratio = mean(test) / mean(ref). The reference's own noise floor under the relative RMSE is given last."
-  echo "Frame time: median CPU relighting (direct at senders, pull-push, S e, flatten) over $FRAMES frames with a moving light."
+  echo "Frame time: median CPU relighting (direct at senders, pull-push, S e with the fine bounces, the bounce-light feedback, flatten) over $FRAMES frames with a moving light."
   echo
   echo "| setting | paper | epsilon | gather rays | levels | bake (s) | links | file (MB) | frame (ms) | indirect rel. RMSE | indirect mean rel. | indirect ratio | final rel. RMSE | final mean rel. | final ratio | ref. noise (indirect / final) |"
   echo "|---|:-:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"

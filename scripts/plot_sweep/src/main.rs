@@ -13,7 +13,7 @@ use anyhow::{anyhow, Context, Result};
 use clap::Parser;
 use plotters::prelude::*;
 
-use mlt_plot::axes::{range, short};
+use mlt_plot::axes::{log_ticks, range, short};
 use mlt_plot::table::Table;
 
 /// Plots error against run time from a sweep CSV.
@@ -82,7 +82,10 @@ fn plot(rows: &[Row], x_of: fn(&Row) -> f64, x_label: &str, title: &str, out: &P
             .margin(20)
             .x_label_area_size(50)
             .y_label_area_size(80)
-            .build_cartesian_2d((x0..x1).log_scale(), (y0..y1).log_scale())?;
+            .build_cartesian_2d(
+                (x0..x1).log_scale().with_key_points(log_ticks(x0, x1)),
+                (y0..y1).log_scale().with_key_points(log_ticks(y0, y1)),
+            )?;
         chart
             .configure_mesh()
             .x_desc(x_label)
