@@ -432,3 +432,77 @@ fn the_bounce_feedback_step_is_its_operators_in_order_and_thread_independent() {
         assert!((a - b).abs() <= 1e-5 * scale, "{k}: {a} vs {b}");
     }
 }
+
+#[test]
+fn lagged_bounce_feedback_is_one_pass_with_last_frames_correction_and_tracks_the_exact_step() {
+    use mlt_relight::{BounceFeedbackOp, FineBounceOp, PullPushOp, ReceiverLinks};
+    let (_d, file, ib, sender_levels, caster) = small_cornell("lagged", 64);
+    let lb = file.links_bytes().unwrap().unwrap();
+    let links = file.access_links(&lb).unwrap();
+    let light_at = |k: usize| {
+        // A light moving 5 mm per frame under the ceiling.
+        let p = Vec3::new(0.25 + 0.005 * k as f32, 0.5, 0.28);
+        Light::point(p, [0.3, 0.25, 0.2]).unwrap()
+    };
+    let relighter = |lagged: bool| {
+        let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, 4)
+            .expect("relighting operators");
+        r.fine_bounces = true;
+        r.bounce_feedback = 1;
+        r.lagged_feedback = lagged;
+        r
+    };
+    let (mut lagged, mut exact) = (relighter(true), relighter(false));
+    // The first frame has no previous correction: it is the exact step.
+    let first = lagged.relight(&light_at(0)).clone();
+    assert_eq!(bits(&first.i), bits(&exact.relight(&light_at(0)).i));
+
+    // A later frame is one pass of S with the level-0 rows on e + d(previous i), then the
+    // fine bounces: no step of its own.
+    let s = ReceiverLinks::build(links);
+    let fine = FineBounceOp::build(&ib, links);
+    let pp = PullPushOp::build(&ib, sender_levels);
+    let d = BounceFeedbackOp::build(&ib, links, sender_levels).correction(&pp, &first.i);
+    let second = lagged.relight(&light_at(1)).clone();
+    let max_e = second.e.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    let e_first: Vec<f32> = second.e.iter().zip(&d).map(|(a, b)| a + b).collect();
+    let mut i = vec![0.0f32; ib.basis.len() * LINK_DIM];
+    let m = ib.basis.level_range(0).len();
+    s.apply_split(&second.e, &e_first, m, 1e-4 * max_e, &mut i);
+    fine.apply(&mut i);
+    assert_eq!(bits(&second.i), bits(&i));
+
+    // Over frames of a slowly moving light the lagged frames stay close to the exact step;
+    // after a reset the next frame is the exact step again.
+    let rel = |a: &[f32], b: &[f32]| {
+        let num: f64 = a.iter().zip(b).map(|(x, y)| f64::from(x - y).powi(2)).sum();
+        let den: f64 = b.iter().map(|y| f64::from(*y).powi(2)).sum();
+        (num / den).sqrt()
+    };
+    let mut worst = 0.0f64;
+    for k in 2..8 {
+        let a = lagged.relight(&light_at(k)).i.clone();
+        let b = exact.relight(&light_at(k)).i.clone();
+        worst = worst.max(rel(&a, &b));
+    }
+    assert!(worst < 0.01, "lagged frames {worst} from the exact step");
+    // And the lag matters at all: the last frame differs from the exact one.
+    assert!(worst > 0.0);
+    // When the light stops, its next frame takes its own correction: a further step of the
+    // fixed point, so it is nearer the fixed point (16 exact steps) than the single exact
+    // step is, and it is then reused.
+    let settled = lagged.relight(&light_at(7)).i.clone();
+    let exact7 = exact.relight(&light_at(7)).i.clone();
+    let fixed = {
+        let mut r = relighter(false);
+        r.bounce_feedback = 16;
+        r.relight(&light_at(7)).i.clone()
+    };
+    let (near, one_step) = (rel(&settled, &fixed), rel(&exact7, &fixed));
+    assert!(near < 0.5 * one_step, "{near} vs {one_step}");
+    assert!(rel(&settled, &exact7) < 5e-3);
+    assert!(lagged.relight(&light_at(7)).reused);
+    lagged.reset_lag();
+    let a = lagged.relight(&light_at(20)).i.clone();
+    assert_eq!(bits(&a), bits(&exact.relight(&light_at(20)).i));
+}

@@ -141,6 +141,21 @@ pub struct CpuRelighter<'a> {
     /// it out; set it (1 is enough) for a file whose `S` chained its bounces through the
     /// coarsest receivers ([`FineBounceOp::applies_to`]).
     pub bounce_feedback: u32,
+    /// Lagged bounce-light feedback, for interactive use: each frame's level-0 rows of `S`
+    /// take the correction computed from the previous frame's indirect light, in the same
+    /// pass as `S e` (its fine bounces then come with the frame's own), and the frame's
+    /// correction is kept for the next. A moving light's correction is one frame late; when
+    /// the light stops, the next call for it relights once more with its own correction (a
+    /// further step of the fixed point, nearer to it than the exact single step) and later
+    /// calls reuse that frame. The first frame, and the first after
+    /// [`CpuRelighter::reset_lag`], takes the exact steps of `bounce_feedback`. Off by
+    /// default; only with `bounce_feedback` above 0.
+    pub lagged_feedback: bool,
+    /// The previous frame's feedback correction (lagged feedback).
+    feedback_prev: Option<Vec<f32>>,
+    /// False after a frame that took a correction computed under another light: the same
+    /// light again is then relit once more (with its own correction) instead of reused.
+    lag_settled: bool,
     frame: Frame,
     last: Option<Light>,
 }
@@ -257,6 +272,9 @@ impl<'a> CpuRelighter<'a> {
             sharpen: true,
             fine_bounces: false,
             bounce_feedback: 0,
+            lagged_feedback: false,
+            feedback_prev: None,
+            lag_settled: true,
             frame: Frame::default(),
             last: None,
         })
@@ -270,6 +288,11 @@ impl<'a> CpuRelighter<'a> {
     pub fn use_bounce_corrections(&mut self, tm: &TransportMeta, feedback_steps: u32) {
         self.fine_bounces = FineBounceOp::applies_to(tm);
         self.bounce_feedback = if self.fine_bounces { feedback_steps } else { 0 };
+    }
+
+    /// Forgets the lagged feedback's correction: the next frame takes the exact steps.
+    pub fn reset_lag(&mut self) {
+        self.feedback_prev = None;
     }
 
     /// The precomputed flattening operator (absent only when too large for 32-bit offsets).
@@ -450,7 +473,8 @@ impl Relight for CpuRelighter<'_> {
     }
 
     fn relight(&mut self, light: &Light) -> &Frame {
-        if self.last.as_ref() == Some(light) {
+        let same_light = self.last.as_ref() == Some(light);
+        if same_light && self.lag_settled {
             self.frame.reused = true;
             return &self.frame;
         }
@@ -477,7 +501,18 @@ impl Relight for CpuRelighter<'_> {
         let threshold = self.skip_fraction * max_e;
         // The bake writes one receiver per point; other files use the stored links.
         let receiver_major = self.links.receivers.to_native() as usize * LINK_DIM == n;
-        let used = if receiver_major {
+        let feedback = self.bounce_feedback > 0 && receiver_major;
+        let lag = feedback && self.lagged_feedback;
+        let prev = if lag { self.feedback_prev.take() } else { None };
+        // A correction from this same light's last frame is the fixed point's next step.
+        self.lag_settled = prev.is_none() || same_light;
+        let used = if let Some(d) = &prev {
+            // The level-0 rows take last frame's correction with the emission.
+            let e_first: Vec<f32> = e.iter().zip(d).map(|(a, b)| a + b).collect();
+            let m = self.ib.basis.level_range(0).len();
+            self.receiver_links
+                .apply_split(&e, &e_first, m, threshold, &mut i)
+        } else if receiver_major {
             self.receiver_links.apply(&e, threshold, &mut i)
         } else {
             // Fewer receivers than points (not written by the bake): the stored links.
@@ -490,7 +525,7 @@ impl Relight for CpuRelighter<'_> {
         times.transport_ms = t.elapsed().as_secs_f64() * 1e3;
 
         let t = Instant::now();
-        if self.bounce_feedback > 0 && receiver_major {
+        if feedback && prev.is_none() {
             let fine = self.fine_bounces.then_some(&self.fine_bounce);
             self.feedback.apply(
                 &self.receiver_links,
@@ -500,6 +535,9 @@ impl Relight for CpuRelighter<'_> {
                 threshold,
                 &mut i,
             );
+        }
+        if lag {
+            self.feedback_prev = Some(self.feedback.correction(&self.pull_push, &i));
         }
         times.feedback_ms = t.elapsed().as_secs_f64() * 1e3;
 

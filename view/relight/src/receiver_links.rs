@@ -31,6 +31,10 @@ pub struct ReceiverLinks {
     values: Vec<[u16; LINK_DIM]>,
 }
 
+/// The sender weights of a product: those of most rows, those of the rows of receivers
+/// `0..m`, and `m`.
+type SenderWeights<'a> = (&'a [[f32; LINK_DIM]], &'a [[f32; LINK_DIM]], usize);
+
 /// Receivers per parallel task of [`ReceiverLinks::apply`].
 const RECEIVER_CHUNK: usize = 1024;
 
@@ -131,7 +135,22 @@ impl ReceiverLinks {
     ///
     /// Panics unless `e.len() >= 3 * senders` and `i.len() == 9 * receivers`.
     pub fn apply(&self, e: &[f32], threshold: f32, i: &mut [f32]) -> usize {
-        self.apply_impl::<false>(e, threshold, self.receivers as usize, i)
+        self.apply_impl::<false>(e, None, threshold, self.receivers as usize, i)
+    }
+
+    /// [`ReceiverLinks::apply`] with the rows of the first `m` receivers (points `0..m`)
+    /// applied to `e_first` instead of `e`, in the same pass over the links: the level-0 rows
+    /// get `S_0 e_first`, the others `S e`. Each row's bits are those of `apply` on the
+    /// vector it gets. Returns the number of senders of `e` used.
+    pub fn apply_split(
+        &self,
+        e: &[f32],
+        e_first: &[f32],
+        m: usize,
+        threshold: f32,
+        i: &mut [f32],
+    ) -> usize {
+        self.apply_impl::<false>(e, Some((e_first, m)), threshold, self.receivers as usize, i)
     }
 
     /// [`ReceiverLinks::apply`] on the rows of the first `m` receivers only (points `0..m`,
@@ -140,7 +159,7 @@ impl ReceiverLinks {
     /// most the number of receivers.
     pub fn apply_first(&self, e: &[f32], threshold: f32, m: usize, i: &mut [f32]) -> usize {
         assert!(m <= self.receivers as usize);
-        self.apply_impl::<false>(e, threshold, m, i)
+        self.apply_impl::<false>(e, None, threshold, m, i)
     }
 
     /// `i += S e` over the receivers with links (the others are left as they are), each
@@ -148,13 +167,15 @@ impl ReceiverLinks {
     /// [`ArchivedLinks::apply`] into a zeroed vector, added to `i`. `e` needs entries only
     /// for the senders held. Returns the number of senders used.
     pub fn apply_add(&self, e: &[f32], threshold: f32, i: &mut [f32]) -> usize {
-        self.apply_impl::<true>(e, threshold, self.receivers as usize, i)
+        self.apply_impl::<true>(e, None, threshold, self.receivers as usize, i)
     }
 
-    /// `i (+)= S e` over the rows of the receivers `0..n`.
+    /// `i (+)= S e` over the rows of the receivers `0..n`; with `first = (e_first, m)` the
+    /// rows of receivers `0..m` use `e_first` instead.
     fn apply_impl<const ADD: bool>(
         &self,
         e: &[f32],
+        first: Option<(&[f32], usize)>,
         threshold: f32,
         n: usize,
         i: &mut [f32],
@@ -162,23 +183,12 @@ impl ReceiverLinks {
         use rayon::prelude::*;
         assert_eq!(i.len(), n * LINK_DIM);
         let mut used = 0;
-        // Each stored sender's scaled light, repeated per vector component, so that a link
-        // multiplies it element by element (the same products as `ArchivedLinks::apply`).
-        let w: Vec<[f32; LINK_DIM]> = self
-            .sender_ids
-            .iter()
-            .zip(&self.scales)
-            .map(|(&s, &scale)| {
-                let s = s as usize;
-                let es = [e[3 * s], e[3 * s + 1], e[3 * s + 2]];
-                if es.iter().all(|x| x.abs() <= threshold) {
-                    [0.0; LINK_DIM]
-                } else {
-                    used += 1;
-                    std::array::from_fn(|k| es[k / 3] * scale)
-                }
-            })
-            .collect();
+        let w = self.sender_weights(e, threshold, &mut used);
+        let (w_first, m) = match first {
+            Some((e_first, m)) => (Some(self.sender_weights(e_first, threshold, &mut 0)), m),
+            None => (None, 0),
+        };
+        let w_first = w_first.as_deref().unwrap_or(&w);
         // Chunks of receivers own disjoint, consecutive ranges of `i` (receivers ascend): from
         // their first receiver to the next chunk's first, the first chunk from point 0.
         let rows = self.receiver_ids.partition_point(|&r| (r as usize) < n);
@@ -209,12 +219,32 @@ impl ReceiverLinks {
             if f16c {
                 // SAFETY: this CPU has AVX2 and F16C (checked above), the only requirement for
                 // calling a function compiled with them.
-                unsafe { self.chunk_f16c::<ADD>(&w, c, rows, first, out) };
+                unsafe { self.chunk_f16c::<ADD>((&w, w_first, m), c, rows, first, out) };
                 return;
             }
-            self.chunk::<ADD, false>(&w, c, rows, first, out);
+            self.chunk::<ADD, false>((&w, w_first, m), c, rows, first, out);
         });
         used
+    }
+
+    /// Each stored sender's scaled light, repeated per vector component, so that a link
+    /// multiplies it element by element (the same products as `ArchivedLinks::apply`); zero
+    /// for senders at most `threshold` in every channel, the others counted in `used`.
+    fn sender_weights(&self, e: &[f32], threshold: f32, used: &mut usize) -> Vec<[f32; LINK_DIM]> {
+        self.sender_ids
+            .iter()
+            .zip(&self.scales)
+            .map(|(&s, &scale)| {
+                let s = s as usize;
+                let es = [e[3 * s], e[3 * s + 1], e[3 * s + 2]];
+                if es.iter().all(|x| x.abs() <= threshold) {
+                    [0.0; LINK_DIM]
+                } else {
+                    *used += 1;
+                    std::array::from_fn(|k| es[k / 3] * scale)
+                }
+            })
+            .collect()
     }
 
     /// [`ReceiverLinks::chunk`] compiled with AVX2 and F16C: 8 of a link's 9 values converted
@@ -223,7 +253,7 @@ impl ReceiverLinks {
     #[target_feature(enable = "avx2,f16c")]
     fn chunk_f16c<const ADD: bool>(
         &self,
-        w: &[[f32; LINK_DIM]],
+        w: SenderWeights<'_>,
         c: usize,
         rows: usize,
         first: usize,
@@ -233,13 +263,14 @@ impl ReceiverLinks {
     }
 
     /// The receivers of chunk `c` (of the first `rows` linked receivers) into `out` (added
-    /// to it with `ADD`), which starts at point `first`.
+    /// to it with `ADD`), which starts at point `first`; receivers below `w.2` use the
+    /// weights `w.1`, the others `w.0`.
     /// With `F16C` the values are converted by [`decode_f16c`], which the caller must have
     /// checked the CPU for (only [`ReceiverLinks::chunk_f16c`] sets it).
     #[inline(always)]
     fn chunk<const ADD: bool, const F16C: bool>(
         &self,
-        w: &[[f32; LINK_DIM]],
+        (w_rest, w_first, m): SenderWeights<'_>,
         c: usize,
         rows: usize,
         first: usize,
@@ -251,7 +282,9 @@ impl ReceiverLinks {
         }
         let qs = c * RECEIVER_CHUNK..((c + 1) * RECEIVER_CHUNK).min(rows);
         for q in qs {
-            let r = receivers[q] as usize - first;
+            let point = receivers[q] as usize;
+            let w = if point < m { w_first } else { w_rest };
+            let r = point - first;
             let (a, b) = (self.offsets[q] as usize, self.offsets[q + 1] as usize);
             let mut acc = [0.0f32; LINK_DIM];
             for (&slot, v) in self.slots[a..b].iter().zip(&self.values[a..b]) {
@@ -395,6 +428,27 @@ mod tests {
             let mut first = vec![f32::NAN; m * 9];
             assert_eq!(rl.apply_first(&e, 0.0, m, &mut first), 6);
             assert_eq!(bits(&first), bits(&full[..m * 9]), "first {m}");
+        }
+    }
+
+    #[test]
+    fn a_split_product_gives_each_row_the_bits_of_the_product_of_its_vector() {
+        let bytes = rkyv::to_bytes::<rancor::Error>(&sample_links()).unwrap();
+        let a = rkyv::access::<ArchivedLinks, rancor::Error>(&bytes).unwrap();
+        a.validate().unwrap();
+        let rl = ReceiverLinks::build(a);
+        let e: Vec<f32> = (0..18).map(|k| 0.3 + (k as f32 * 1.3).cos()).collect();
+        let mut e_first: Vec<f32> = (0..18).map(|k| -0.2 + (k as f32 * 0.7).sin()).collect();
+        // A sender dark in `e_first` only: skipped there, used for the other rows.
+        e_first[3..6].copy_from_slice(&[1e-3, 0.0, -1e-3]);
+        let (mut plain, mut other) = (vec![0.0f32; 14 * 9], vec![0.0f32; 14 * 9]);
+        rl.apply(&e, 0.01, &mut plain);
+        rl.apply(&e_first, 0.01, &mut other);
+        for m in [0, 1, 5, 12, 14] {
+            let mut got = vec![f32::NAN; 14 * 9];
+            assert_eq!(rl.apply_split(&e, &e_first, m, 0.01, &mut got), 6);
+            assert_eq!(bits(&got[..m * 9]), bits(&other[..m * 9]), "first {m}");
+            assert_eq!(bits(&got[m * 9..]), bits(&plain[m * 9..]), "rest {m}");
         }
     }
 

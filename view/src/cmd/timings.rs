@@ -79,6 +79,7 @@ fn relight_frames(args: &TimingsArgs, v: &mut Viewing<'_>) -> serde_json::Value 
         "sharpen": !args.baked.relight.no_sharpen,
         "fine_bounces": v.relighter.fine_bounces,
         "bounce_feedback_steps": v.relighter.bounce_feedback,
+        "lagged_feedback": v.relighter.lagged_feedback,
         "median_averaged_points": median(averaged),
         "load": v.relighter.load_stats(),
         "gpu": "not used: CPU relighting only (`view render FILE --out DIR` renders)",
