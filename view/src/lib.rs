@@ -3,6 +3,7 @@
 //! comparison, the exact per-pixel evaluation of the indirect image, on top of the per-frame relighting of `mlt-relight` (section 3.3; its main types
 //! are re-exported here).
 
+pub mod breakdown;
 pub mod camera;
 pub mod compare;
 pub mod exact;

@@ -302,6 +302,50 @@ fn compare_reports_zero_for_identical_dirs_and_the_scale_of_a_scaled_image() {
     );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert!((v["indirect"]["ratio_of_means"].as_f64().unwrap() - 1.25).abs() < 1e-5);
+    assert!(v.get("indirect_breakdown").is_none());
+    // The breakdown of a uniformly scaled image: every lit part 1.25, the parts' excesses
+    // adding up to the whole image's.
+    let out = Command::new(exe)
+        .arg("compare")
+        .args([&ref_dir, &test_dir])
+        .args(["--json", "--breakdown", "2x2"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let b = &v["indirect_breakdown"];
+    for (key, count) in [("tiles", 4), ("brightness", 5)] {
+        let parts = b[key].as_array().unwrap();
+        assert_eq!(parts.len(), count, "{key}");
+        let pixels: u64 = parts.iter().map(|p| p["pixels"].as_u64().unwrap()).sum();
+        assert_eq!(pixels, 400, "{key}");
+        let excess: f64 = parts
+            .iter()
+            .map(|p| p["excess_of_total"].as_f64().unwrap())
+            .sum();
+        assert!((excess - 0.25).abs() < 1e-5, "{key}: {excess}");
+        for p in parts
+            .iter()
+            .filter(|p| p["share_of_reference"].as_f64().unwrap() > 0.0)
+        {
+            assert!(
+                (p["ratio_of_means"].as_f64().unwrap() - 1.25).abs() < 1e-5,
+                "{p}"
+            );
+        }
+    }
+    let out = Command::new(exe)
+        .arg("compare")
+        .args([&ref_dir, &test_dir])
+        .args(["--breakdown", "3x0"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("3x0"));
     std::fs::remove_file(test_dir.join("final.exr")).unwrap();
     let out = Command::new(exe)
         .arg("compare")

@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::Args;
+use mlt_view::breakdown::{by_brightness, by_tiles, format_parts, Part};
 use mlt_view::compare::{compare_dirs, compare_probe_csv, format_metrics, Metrics};
 
 /// Compares images (or probes) against the brute-force reference.
@@ -29,6 +30,27 @@ pub struct CompareArgs {
     /// 2002, key measured on the reference indirect image).
     #[arg(long)]
     pub side_by_side: Option<PathBuf>,
+    /// Also break the indirect image's error down by part of the image: a grid of tiles
+    /// (`COLSxROWS`, 4x3 when no value is given) and five classes of the reference's
+    /// brightness (darkest first). Per part: its share of the reference's light, its ratio of
+    /// means, its relative RMSE and its share of the whole image's error in the mean (these add
+    /// up to the ratio of means less one).
+    #[arg(long, value_name = "COLSxROWS", num_args = 0..=1, default_missing_value = "4x3",
+          value_parser = parse_grid)]
+    pub breakdown: Option<(usize, usize)>,
+}
+
+/// `COLSxROWS` for [`CompareArgs::breakdown`].
+fn parse_grid(s: &str) -> Result<(usize, usize), String> {
+    let (c, r) = s
+        .split_once('x')
+        .ok_or_else(|| format!("expected COLSxROWS (e.g. 4x3), got {s}"))?;
+    let parse = |v: &str| v.trim().parse::<usize>().map_err(|e| format!("{v}: {e}"));
+    let (c, r) = (parse(c)?, parse(r)?);
+    if !(1..=64).contains(&c) || !(1..=64).contains(&r) {
+        return Err(format!("COLS and ROWS must be 1 to 64, got {s}"));
+    }
+    Ok((c, r))
 }
 
 pub fn run(cli: &CompareArgs) -> Result<()> {
@@ -40,6 +62,10 @@ pub fn run(cli: &CompareArgs) -> Result<()> {
             cli.reference.display()
         )
     };
+    anyhow::ensure!(
+        !(cli.probes && cli.breakdown.is_some()),
+        "--breakdown compares images, not probes"
+    );
     if cli.probes {
         let c = compare_probe_csv(&cli.reference, &cli.test).with_context(context)?;
         if cli.json {
@@ -50,18 +76,76 @@ pub fn run(cli: &CompareArgs) -> Result<()> {
         return Ok(());
     }
     let c = compare_dirs(&cli.reference, &cli.test).with_context(context)?;
+    let parts = match cli.breakdown {
+        Some((cols, rows)) => Some(breakdown(&cli.reference, &cli.test, cols, rows)?),
+        None => None,
+    };
     if cli.json {
-        println!("{}", serde_json::to_string_pretty(&c)?);
+        let mut v = serde_json::to_value(&c)?;
+        if let (Some((tiles, classes)), Some(o)) = (&parts, v.as_object_mut()) {
+            o.insert(
+                "indirect_breakdown".into(),
+                serde_json::json!({"tiles": tiles, "brightness": classes}),
+            );
+        }
+        println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
         print_metrics(cli, "radiance", &c.indirect, &c.final_image);
         if let Some(n) = &c.reference_noise {
             println!("reference noise (reference.json): {n}");
+        }
+        if let Some((tiles, classes)) = &parts {
+            let (cols, rows) = cli.breakdown.unwrap_or((1, 1));
+            println!("indirect by tile ({cols}x{rows}, row by row from the top):");
+            print!("{}", format_parts(tiles));
+            println!("indirect by the reference's brightness (fifths, darkest first):");
+            print!("{}", format_parts(classes));
         }
     }
     if let Some(out) = &cli.side_by_side {
         side_by_side(&cli.reference, &cli.test, out)?;
     }
     Ok(())
+}
+
+/// The indirect images' luminances, reference and test, and their size.
+fn indirect_luminances(reference: &Path, test: &Path) -> Result<(Vec<f64>, Vec<f64>, u32, u32)> {
+    use mlt_view::images::{luminance, RgbImage};
+    let r = RgbImage::read_exr(&reference.join("reference_indirect.exr"))?;
+    let t = RgbImage::read_exr(&test.join("indirect.exr"))
+        .or_else(|_| RgbImage::read_exr(&test.join("reference_indirect.exr")))?;
+    anyhow::ensure!(
+        (r.width, r.height) == (t.width, t.height),
+        "{}: {}x{} against the reference's {}x{}",
+        test.display(),
+        t.width,
+        t.height,
+        r.width,
+        r.height
+    );
+    let lum = |img: &RgbImage| -> Vec<f64> {
+        img.pixels
+            .iter()
+            .map(|p| f64::from(luminance(*p)))
+            .collect()
+    };
+    Ok((lum(&r), lum(&t), r.width, r.height))
+}
+
+/// The indirect image's error by tile and by fifth of the reference's brightness.
+fn breakdown(
+    reference: &Path,
+    test: &Path,
+    cols: usize,
+    rows: usize,
+) -> Result<(Vec<Part>, Vec<Part>)> {
+    let (r, t, w, h) = indirect_luminances(reference, test)?;
+    let (w, h) = (w as usize, h as usize);
+    anyhow::ensure!(
+        cols <= w && rows <= h,
+        "a {cols}x{rows} grid is finer than the {w}x{h} image"
+    );
+    Ok((by_tiles(&r, &t, w, h, cols, rows), by_brightness(&r, &t, 5)))
 }
 
 /// `[test | reference | |test - reference|]`, tone-mapped alike.
