@@ -43,6 +43,8 @@ for spec in "$@"; do
         "$bin/view" render "$file" --out "$dir" --width "$w" --height "$h" \
             --frames "$frames" --flatten "$flatten" >"$dir.log" 2>&1 ||
             { echo "bench_splat.sh: view render failed, see $dir.log" >&2; tail -5 "$dir.log" >&2; exit 1; }
+        # python3 rather than jq (which the other scripts use): the GPU machines this runs on
+        # have python3 and nothing can be installed there.
         python3 - "$dir/timings.json" "$stem" "$size" "$flatten" <<'EOF'
 import json, sys
 t = json.load(open(sys.argv[1]))

@@ -74,9 +74,9 @@ fn sphere_relit(
     }
     let mut residual = 0.0;
     if feedback > 0 {
-        let senders = 2;
-        let op = BounceFeedbackOp::build(&ib, links, senders);
-        let pp = PullPushOp::build(&ib, senders);
+        let sender_levels = 2;
+        let op = BounceFeedbackOp::build(&ib, links, sender_levels);
+        let pp = PullPushOp::build(&ib, sender_levels);
         let fine_op = fine.then(|| FineBounceOp::build(&ib, links));
         let s = ReceiverLinks::build(links);
         op.apply(&s, &pp, fine_op.as_ref(), feedback, 0.0, &mut i);

@@ -183,7 +183,7 @@ pub fn render(
         transport: m(&|t| t.transport_ms),
         feedback: m(&|t| t.feedback_ms),
         flatten: m(&|t| t.flatten_ms),
-        total: m(&|t| t.direct_ms + t.project_ms + t.transport_ms + t.feedback_ms + t.flatten_ms),
+        total: m(&|t| t.total_ms()),
     };
     let g = |f: &dyn Fn(&RenderTimes) -> f64| median(gpu_times.iter().map(f).collect());
     let gpu_median_ms = GpuMedians {

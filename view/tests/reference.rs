@@ -289,12 +289,15 @@ fn compare_reports_zero_for_identical_dirs_and_the_scale_of_a_scaled_image() {
 
     // The binary: text and JSON, and errors that name the file.
     let exe = env!("CARGO_BIN_EXE_view");
-    let out = Command::new(exe)
-        .arg("compare")
-        .args([&ref_dir, &test_dir])
-        .arg("--json")
-        .output()
-        .unwrap();
+    let compare = |options: &[&str]| {
+        Command::new(exe)
+            .arg("compare")
+            .args([&ref_dir, &test_dir])
+            .args(options)
+            .output()
+            .unwrap()
+    };
+    let out = compare(&["--json"]);
     assert!(
         out.status.success(),
         "{}",
@@ -305,12 +308,7 @@ fn compare_reports_zero_for_identical_dirs_and_the_scale_of_a_scaled_image() {
     assert!(v.get("indirect_breakdown").is_none());
     // The breakdown of a uniformly scaled image: every lit part 1.25, the parts' excesses
     // adding up to the whole image's.
-    let out = Command::new(exe)
-        .arg("compare")
-        .args([&ref_dir, &test_dir])
-        .args(["--json", "--breakdown", "2x2"])
-        .output()
-        .unwrap();
+    let out = compare(&["--json", "--breakdown", "2x2"]);
     assert!(
         out.status.success(),
         "{}",
@@ -338,20 +336,11 @@ fn compare_reports_zero_for_identical_dirs_and_the_scale_of_a_scaled_image() {
             );
         }
     }
-    let out = Command::new(exe)
-        .arg("compare")
-        .args([&ref_dir, &test_dir])
-        .args(["--breakdown", "3x0"])
-        .output()
-        .unwrap();
+    let out = compare(&["--breakdown", "3x0"]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("3x0"));
     std::fs::remove_file(test_dir.join("final.exr")).unwrap();
-    let out = Command::new(exe)
-        .arg("compare")
-        .args([&ref_dir, &test_dir])
-        .output()
-        .unwrap();
+    let out = compare(&[]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
     // The final image falls back to reference_final.exr, which is not there either.

@@ -43,7 +43,7 @@ use mlt_format::links::{ArchivedLinks, LINK_DIM};
 use mlt_format::IndexedBasis;
 use rayon::prelude::*;
 
-use crate::fine_bounce::{along_normal, FineBounceOp};
+use crate::fine_bounce::{along_normal, level0_emission, FineBounceOp};
 use crate::pull_push_op::PullPushOp;
 use crate::receiver_links::ReceiverLinks;
 
@@ -144,11 +144,9 @@ impl BounceFeedbackOp {
             });
         pull_push.pull(&mut d, 3);
         pull_push.push(&mut d, 3);
-        for (j, n) in self.normals[..self.coarsest].iter().enumerate() {
-            let y = along_normal(*n, &v[j * LINK_DIM..]);
-            for (a, y) in d[3 * j..3 * j + 3].iter_mut().zip(y) {
-                *a -= y;
-            }
+        let y = level0_emission(&self.normals[..self.coarsest], v);
+        for (a, y) in d.iter_mut().zip(y) {
+            *a -= y;
         }
         d
     }

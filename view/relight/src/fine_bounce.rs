@@ -34,8 +34,7 @@ use crate::receiver_links::ReceiverLinks;
 /// The finer receivers' links to level-0 senders, receiver-major, with the level-0 normals.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct FineBounceOp {
-    /// Level-0 points (the senders the links reach).
-    coarsest: usize,
+    /// Normals of the level-0 points (the senders the links reach).
     normals: Vec<[f32; 3]>,
     links: ReceiverLinks,
 }
@@ -53,7 +52,6 @@ impl FineBounceOp {
         let coarsest = ib.basis.level_range(0).len();
         let c = coarsest as u32;
         FineBounceOp {
-            coarsest,
             normals: ib.basis.normals[..coarsest].to_vec(),
             links: ReceiverLinks::build_where(links, |s, r| s < c && r >= c),
         }
@@ -73,7 +71,7 @@ impl FineBounceOp {
     /// `i_r += sum_j T_rj (n_j . i_j)` over level-0 points `j`. The same bits for any thread
     /// count. Panics unless `i` holds 9 floats per receiver of the links.
     pub fn apply(&self, i: &mut [f32]) {
-        let y = self.level0_emission(i);
+        let y = level0_emission(&self.normals, i);
         // Receivers of these links are above level 0, so the level-0 part of `i` read above
         // is not written.
         self.links.apply_add(&y, 0.0, i);
@@ -83,18 +81,19 @@ impl FineBounceOp {
     /// level-0 point) instead of from `i`: the finer receivers' next bounces of light added at
     /// level 0 after `S e` (as [`crate::BounceFeedbackOp`] adds it).
     pub fn apply_from(&self, level0: &[f32], i: &mut [f32]) {
-        let y = self.level0_emission(level0);
+        let y = level0_emission(&self.normals, level0);
         self.links.apply_add(&y, 0.0, i);
     }
+}
 
-    /// `y_j = n_j . v_j` per colour channel over the level-0 points of `v` (9 floats each).
-    fn level0_emission(&self, v: &[f32]) -> Vec<f32> {
-        let mut y = vec![0.0f32; 3 * self.coarsest];
-        for (j, n) in self.normals.iter().enumerate() {
-            y[3 * j..3 * j + 3].copy_from_slice(&along_normal(*n, &v[j * LINK_DIM..]));
-        }
-        y
+/// The bake's chain's emission of level-0 senders, `y_j = n_j . v_j` per colour channel, for
+/// the level-0 points with `normals` (the first points of `v`, 9 floats each).
+pub(crate) fn level0_emission(normals: &[[f32; 3]], v: &[f32]) -> Vec<f32> {
+    let mut y = vec![0.0f32; 3 * normals.len()];
+    for (j, n) in normals.iter().enumerate() {
+        y[3 * j..3 * j + 3].copy_from_slice(&along_normal(*n, &v[j * LINK_DIM..]));
     }
+    y
 }
 
 /// The irradiance `n . v_c` per colour channel `c` of a point's vector irradiance `v` (its 9

@@ -371,18 +371,34 @@ mod tests {
         l
     }
 
+    /// [`sample_links`] archived.
+    fn sample_bytes() -> rkyv::util::AlignedVec {
+        rkyv::to_bytes::<rancor::Error>(&sample_links()).unwrap()
+    }
+
+    /// The links of `bytes`, validated.
+    fn validated(bytes: &[u8]) -> &ArchivedLinks {
+        let a = rkyv::access::<ArchivedLinks, rancor::Error>(bytes).unwrap();
+        a.validate().unwrap();
+        a
+    }
+
+    /// RGB light for the six senders of [`sample_links`].
+    fn sample_emission() -> Vec<f32> {
+        (0..18).map(|k| 0.3 + (k as f32 * 1.3).cos()).collect()
+    }
+
     fn bits(v: &[f32]) -> Vec<u32> {
         v.iter().map(|x| x.to_bits()).collect()
     }
 
     #[test]
     fn receiver_major_gives_the_same_bits() {
-        let bytes = rkyv::to_bytes::<rancor::Error>(&sample_links()).unwrap();
-        let a = rkyv::access::<ArchivedLinks, rancor::Error>(&bytes).unwrap();
-        a.validate().unwrap();
+        let bytes = sample_bytes();
+        let a = validated(&bytes);
         let rl = ReceiverLinks::build(a);
         assert_eq!(rl.receiver_ids(), (0..12).collect::<Vec<u32>>().as_slice());
-        let e: Vec<f32> = (0..18).map(|k| 0.3 + (k as f32 * 1.3).cos()).collect();
+        let e = sample_emission();
         let mut e_dark = e.clone();
         e_dark[6..9].copy_from_slice(&[1e-3, -1e-3, 0.0]);
         for (e, threshold, senders) in [(&e, 0.0, 6), (&e_dark, 0.01, 5)] {
@@ -417,11 +433,10 @@ mod tests {
 
     #[test]
     fn the_first_rows_alone_give_the_bits_of_the_full_product() {
-        let bytes = rkyv::to_bytes::<rancor::Error>(&sample_links()).unwrap();
-        let a = rkyv::access::<ArchivedLinks, rancor::Error>(&bytes).unwrap();
-        a.validate().unwrap();
+        let bytes = sample_bytes();
+        let a = validated(&bytes);
         let rl = ReceiverLinks::build(a);
-        let e: Vec<f32> = (0..18).map(|k| 0.3 + (k as f32 * 1.3).cos()).collect();
+        let e = sample_emission();
         let mut full = vec![0.0f32; 14 * 9];
         rl.apply(&e, 0.0, &mut full);
         for m in [0, 1, 5, 12, 14] {
@@ -433,11 +448,10 @@ mod tests {
 
     #[test]
     fn a_split_product_gives_each_row_the_bits_of_the_product_of_its_vector() {
-        let bytes = rkyv::to_bytes::<rancor::Error>(&sample_links()).unwrap();
-        let a = rkyv::access::<ArchivedLinks, rancor::Error>(&bytes).unwrap();
-        a.validate().unwrap();
+        let bytes = sample_bytes();
+        let a = validated(&bytes);
         let rl = ReceiverLinks::build(a);
-        let e: Vec<f32> = (0..18).map(|k| 0.3 + (k as f32 * 1.3).cos()).collect();
+        let e = sample_emission();
         let mut e_first: Vec<f32> = (0..18).map(|k| -0.2 + (k as f32 * 0.7).sin()).collect();
         // A sender dark in `e_first` only: skipped there, used for the other rows.
         e_first[3..6].copy_from_slice(&[1e-3, 0.0, -1e-3]);
@@ -457,9 +471,8 @@ mod tests {
         // Keep senders 0-2 and receivers from 4 on: the added product must equal the full
         // product of the same links (senders 3-5 dark, receivers below 4 not written) formed
         // on its own and then added, bit for bit.
-        let bytes = rkyv::to_bytes::<rancor::Error>(&sample_links()).unwrap();
-        let a = rkyv::access::<ArchivedLinks, rancor::Error>(&bytes).unwrap();
-        a.validate().unwrap();
+        let bytes = sample_bytes();
+        let a = validated(&bytes);
         let rl = ReceiverLinks::build_where(a, |s, r| s < 3 && r >= 4);
         assert!(rl.receiver_ids().iter().all(|&r| r >= 4));
         assert_eq!(
@@ -468,7 +481,7 @@ mod tests {
                 .map(|s| (4..12u32).filter(|r| (r + s) % 3 != 0).count())
                 .sum::<usize>()
         );
-        let e: Vec<f32> = (0..18).map(|k| 0.3 + (k as f32 * 1.3).cos()).collect();
+        let e = sample_emission();
         let mut dark = e.clone();
         dark[9..].fill(0.0);
         let mut product = vec![0.0f32; 14 * 9];

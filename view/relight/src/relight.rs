@@ -20,6 +20,13 @@ pub struct StageTimes {
     pub flatten_ms: f64,
 }
 
+impl StageTimes {
+    /// The CPU stages together.
+    pub fn total_ms(&self) -> f64 {
+        self.direct_ms + self.project_ms + self.transport_ms + self.feedback_ms + self.flatten_ms
+    }
+}
+
 /// The lighting of one frame.
 #[derive(Clone, Debug, Default)]
 pub struct Frame {

@@ -127,6 +127,17 @@ pub enum FeedbackLag {
     Off,
 }
 
+impl FeedbackLag {
+    /// Whether the feedback is lagged, in the window (`in_window`) or elsewhere.
+    pub fn lagged(self, in_window: bool) -> bool {
+        match self {
+            FeedbackLag::Auto => in_window,
+            FeedbackLag::On => true,
+            FeedbackLag::Off => false,
+        }
+    }
+}
+
 /// `K,F[,H,R]` for [`RelightArgs::flat_rule`].
 fn parse_flat_rule(s: &str) -> Result<FlatRule, String> {
     let parts: Vec<&str> = s.split(',').map(str::trim).collect();

@@ -9,6 +9,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use mlt_view::breakdown::{by_brightness, by_tiles, format_parts, Part};
 use mlt_view::compare::{compare_dirs, compare_probe_csv, format_metrics, Metrics};
+use mlt_view::images::{luminance, RgbImage};
 
 /// Compares images (or probes) against the brute-force reference.
 #[derive(Args, Debug)]
@@ -108,9 +109,9 @@ pub fn run(cli: &CompareArgs) -> Result<()> {
     Ok(())
 }
 
-/// The indirect images' luminances, reference and test, and their size.
-fn indirect_luminances(reference: &Path, test: &Path) -> Result<(Vec<f64>, Vec<f64>, u32, u32)> {
-    use mlt_view::images::{luminance, RgbImage};
+/// The indirect images, reference and test (which falls back to a `reference_indirect.exr`,
+/// so that two references compare), of the same size.
+fn indirect_pair(reference: &Path, test: &Path) -> Result<(RgbImage, RgbImage)> {
     let r = RgbImage::read_exr(&reference.join("reference_indirect.exr"))?;
     let t = RgbImage::read_exr(&test.join("indirect.exr"))
         .or_else(|_| RgbImage::read_exr(&test.join("reference_indirect.exr")))?;
@@ -123,13 +124,7 @@ fn indirect_luminances(reference: &Path, test: &Path) -> Result<(Vec<f64>, Vec<f
         r.width,
         r.height
     );
-    let lum = |img: &RgbImage| -> Vec<f64> {
-        img.pixels
-            .iter()
-            .map(|p| f64::from(luminance(*p)))
-            .collect()
-    };
-    Ok((lum(&r), lum(&t), r.width, r.height))
+    Ok((r, t))
 }
 
 /// The indirect image's error by tile and by fifth of the reference's brightness.
@@ -139,8 +134,15 @@ fn breakdown(
     cols: usize,
     rows: usize,
 ) -> Result<(Vec<Part>, Vec<Part>)> {
-    let (r, t, w, h) = indirect_luminances(reference, test)?;
-    let (w, h) = (w as usize, h as usize);
+    let (r, t) = indirect_pair(reference, test)?;
+    let (w, h) = (r.width as usize, r.height as usize);
+    let lum = |img: &RgbImage| -> Vec<f64> {
+        img.pixels
+            .iter()
+            .map(|p| f64::from(luminance(*p)))
+            .collect()
+    };
+    let (r, t) = (lum(&r), lum(&t));
     anyhow::ensure!(
         cols <= w && rows <= h,
         "a {cols}x{rows} grid is finer than the {w}x{h} image"
@@ -150,19 +152,8 @@ fn breakdown(
 
 /// `[test | reference | |test - reference|]`, tone-mapped alike.
 fn side_by_side(reference: &Path, test: &Path, out: &Path) -> Result<()> {
-    use mlt_view::images::{linear_to_srgb, luminance, RgbImage, ToneMap};
-    let r = RgbImage::read_exr(&reference.join("reference_indirect.exr"))?;
-    let t = RgbImage::read_exr(&test.join("indirect.exr"))
-        .or_else(|_| RgbImage::read_exr(&test.join("reference_indirect.exr")))?;
-    anyhow::ensure!(
-        (r.width, r.height) == (t.width, t.height),
-        "{}: {}x{} against the reference's {}x{}",
-        test.display(),
-        t.width,
-        t.height,
-        r.width,
-        r.height
-    );
+    use mlt_view::images::{linear_to_srgb, ToneMap};
+    let (r, t) = indirect_pair(reference, test)?;
     let tone = ToneMap::measure(&r);
     let (w, h) = (r.width, r.height);
     let mut img = image::RgbImage::new(3 * w, h);

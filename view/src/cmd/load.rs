@@ -14,7 +14,7 @@ use mlt_format::{BakedFile, IndexedBasis, Meta};
 use mlt_scenes::{RayCaster, Scene};
 use mlt_view::{Camera, CpuRelighter, Light};
 
-use crate::cmd::args::{BakedArgs, FeedbackLag, SceneArgs};
+use crate::cmd::args::{BakedArgs, SceneArgs};
 
 /// The scene with the camera and light to view it by.
 pub struct Setting {
@@ -96,7 +96,7 @@ pub fn with_viewing<T>(args: &BakedArgs, f: impl FnOnce(Viewing<'_>) -> Result<T
     // light, is left out too.
     if !relight.no_fine_bounces {
         relighter.use_bounce_corrections(&tm, relight.bounce_feedback);
-        relighter.lagged_feedback = relight.feedback_lag == FeedbackLag::On;
+        relighter.lagged_feedback = relight.feedback_lag.lagged(false);
     }
     if relighter.support_average {
         relighter.build_support_tables();

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::Result;
 use clap::Args;
 
-use crate::cmd::args::{BakedArgs, FeedbackLag, GpuArgs};
+use crate::cmd::args::{BakedArgs, GpuArgs};
 use crate::cmd::load::with_viewing;
 
 /// Opens a window with a free camera and a movable light.
@@ -31,10 +31,9 @@ pub struct OpenArgs {
 
 pub fn run(args: &OpenArgs) -> Result<()> {
     with_viewing(&args.baked, |mut v| {
-        if args.baked.relight.feedback_lag == FeedbackLag::Auto {
-            // Interactive: a light that moves is relit with last frame's correction.
-            v.relighter.lagged_feedback = true;
-        }
+        // Interactive: a light that moves is relit with last frame's correction, unless the
+        // command line says otherwise (`with_viewing` set it for images).
+        v.relighter.lagged_feedback = args.baked.relight.feedback_lag.lagged(true);
         let moving_light = args.moving_light.then(|| v.path_radius());
         mlt_view::window::run(mlt_view::window::WindowSetup {
             title: format!("view {}", v.path.display()),
