@@ -212,7 +212,7 @@ pub fn bake_scene(
     })
 }
 
-/// The `FLAT` section of a file with transport: the one-level flat basis on `ib` for the
+/// The `FLT2` section of a file with transport: the one-level flat basis on `ib` for the
 /// receivers of `transport`'s links, which the viewer would otherwise build when it opens
 /// the file. `None` without transport.
 pub fn flat_section(

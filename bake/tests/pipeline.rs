@@ -277,9 +277,9 @@ fn merged_shards_equal_the_single_bake_for_one_two_and_three_shards() {
         .args(["-q", "-o"])
         .arg(&full));
     let expected = std::fs::read(&full).unwrap();
-    // The single bake stores the flat basis (`FLAT`); so, byte for byte, does every merge.
+    // The single bake stores the flat basis (`FLT2`); so, byte for byte, does every merge.
     let f = mlt_format::BakedFile::open(&full).unwrap();
-    assert!(f.flat_section().unwrap().is_some(), "no FLAT section");
+    assert!(f.flat_section().unwrap().is_some(), "no FLT2 section");
     for n in 1..=3u32 {
         let (_, merged) = shards_merged(&d, &[], n, "");
         assert!(

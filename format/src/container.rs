@@ -24,8 +24,8 @@
 //! A reader reads the files of its own major version only. Within a major version:
 //! - a minor version may add sections under new tags, which older readers skip;
 //! - the sections of a baked file (`META`, `BASE`, `RTRE`, `TRNS`, `SLNK`, `TRPT`, `FLAT`,
-//!   `TDRP`) keep their layout for the whole major version, so every reader of the major
-//!   version reads them from a file of any minor version;
+//!   `TDRP`, `FLT2`) keep their layout for the whole major version, so every reader of the
+//!   major version reads them from a file of any minor version;
 //! - the layout of `TSHD`, which only the intermediate shard files of `bake --shard` carry
 //!   (they are merged by the build that computed them), may change with a minor version. A
 //!   reader reads a `TSHD` section only from the minor versions with the layout it knows
@@ -37,7 +37,10 @@
 //! left out); 1.4 the bounce policy in `TSHD`; 1.5 the optional `FLAT` section (the one-level
 //! flat basis the viewer splats, `crate::flat_section`; a reader builds it from the basis and
 //! links of a file without one), the optional `TDRP` section (the light the refinement of T
-//! dropped) and the per-row sums behind it in `TSHD` (its current layout). From 1.4 the bake
+//! dropped) and the per-row sums behind it in `TSHD` (its current layout); 1.6 the `FLT2`
+//! section, which replaces `FLAT` in the files it writes: the flat basis by a rule with one
+//! more parameter (`finer_cover`: coarser points left out where finer ones cover them), so a
+//! 1.5 reader skips it and builds the flat basis by its own rule. From 1.4 the bake
 //! stores each level's points in Morton order; readers do not rely on it.
 
 use std::ops::Deref;
@@ -51,7 +54,7 @@ use crate::error::FormatError;
 pub const MAGIC: [u8; 8] = *b"\x89MLTBK\r\n";
 pub const VERSION_MAJOR: u16 = 1;
 /// The minor version this build writes (the module docs list what each one added).
-pub const VERSION_MINOR: u16 = 5;
+pub const VERSION_MINOR: u16 = 6;
 /// The first minor version with the `TSHD` layout this build reads.
 pub const SHARD_LAYOUT_MINOR: u16 = 5;
 pub const FIXED_HEADER: usize = 64;

@@ -16,7 +16,9 @@ use crate::container::{
     self, Header, SectionBytes, SectionIn, ALIGN, SHARD_LAYOUT_MINOR, VERSION_MAJOR, VERSION_MINOR,
 };
 use crate::error::FormatError;
-use crate::flat_section::{ArchivedFlatSection, FlatRule, FlatSection, StoredFlat};
+use crate::flat_section::{
+    ArchivedFlatSection, ArchivedFlatSection1_5, FlatRule, FlatSection, StoredFlat,
+};
 use crate::links::{ArchivedLinks, Links};
 use crate::meta::{Meta, RefinementDrop, TransportMeta, TransportReport};
 use crate::rtree::RTree;
@@ -38,6 +40,11 @@ pub const TAG_SHARD: [u8; 4] = *b"TSHD";
 /// Added in format 1.5: the one-level flat basis ([`FlatSection`]); optional, so older files
 /// still read (a viewer then builds the flat basis when it opens them).
 pub const TAG_FLAT: [u8; 4] = *b"FLAT";
+/// Added in format 1.6, written instead of `FLAT`: the flat basis by a rule with
+/// `finer_cover` ([`FlatSection`]). A file with only a `FLAT` section
+/// ([`crate::flat_section::FlatSection1_5`]) has it read for its rule, an older one than this
+/// build's.
+pub const TAG_FLAT2: [u8; 4] = *b"FLT2";
 /// Added in format 1.5: the light the refinement of T dropped ([`RefinementDrop`]);
 /// optional, so older files still read.
 pub const TAG_DROP: [u8; 4] = *b"TDRP";
@@ -72,8 +79,9 @@ pub struct BakeContents {
     pub input_key: u64,
     /// In a shard file: the shard's share of T.
     pub shard: Option<ShardSection>,
-    /// The flat basis for the transport's links (`FLAT`, format 1.5; `None` in older files,
-    /// shard files and files without transport).
+    /// The flat basis for the transport's links (`FLT2`, format 1.6; `None` in older files,
+    /// whose 1.5 `FLAT` section is by an older rule, in shard files and in files without
+    /// transport).
     pub flat: Option<FlatSection>,
 }
 
@@ -132,8 +140,8 @@ pub fn encode(contents: &BakeContents, opts: WriteOptions) -> Result<Vec<u8>, Fo
         sections.push((TAG_SHARD, bytes));
     }
     if let Some(f) = &contents.flat {
-        let bytes = rkyv::to_bytes::<rancor::Error>(f).map_err(ser_err(TAG_FLAT))?;
-        sections.push((TAG_FLAT, bytes));
+        let bytes = rkyv::to_bytes::<rancor::Error>(f).map_err(ser_err(TAG_FLAT2))?;
+        sections.push((TAG_FLAT2, bytes));
     }
     let ins: Vec<SectionIn> = sections
         .iter()
@@ -416,16 +424,17 @@ impl BakedFile {
         })
     }
 
-    /// The `FLAT` section as stored (validated by rkyv only; [`BakedFile::flat_basis`] checks
+    /// The `FLT2` section as stored (validated by rkyv only; [`BakedFile::flat_basis`] checks
     /// it against the basis and links), if the file has one.
+    /// A file with only the format 1.5 section, built by an older rule, gives `None`.
     pub fn flat_section(&self) -> Result<Option<FlatSection>, FormatError> {
-        if !self.has_section(TAG_FLAT) {
+        if !self.has_section(TAG_FLAT2) {
             return Ok(None);
         }
-        self.section::<FlatSection>(TAG_FLAT).map(Some)
+        self.section::<FlatSection>(TAG_FLAT2).map(Some)
     }
 
-    /// The flat basis stored in the `FLAT` section, read in place from the mapping and checked
+    /// The flat basis stored in the `FLT2` section, read in place from the mapping and checked
     /// against this file's basis `hier` and the link flags `linked` of its links
     /// ([`crate::flat_section::linked_flags`]). A section that does not match them or is
     /// malformed is an error naming the file; one built by another rule than this build's is
@@ -435,14 +444,22 @@ impl BakedFile {
         hier: &IndexedBasis,
         linked: &[bool],
     ) -> Result<StoredFlat, FormatError> {
-        let Some(entry) = self.header.sections.iter().find(|e| e.tag == TAG_FLAT) else {
-            return Ok(StoredFlat::Absent);
-        };
-        let bad = |detail: String| FormatError::BadSection {
+        let find = |tag: [u8; 4]| self.header.sections.iter().find(|e| e.tag == tag);
+        let bad = |tag: [u8; 4], detail: String| FormatError::BadSection {
             path: self.path.clone(),
-            tag: "FLAT".into(),
+            tag: String::from_utf8_lossy(&tag).into_owned(),
             detail,
         };
+        let Some(entry) = find(TAG_FLAT2) else {
+            let Some(old) = find(TAG_FLAT) else {
+                return Ok(StoredFlat::Absent);
+            };
+            let bytes = container::section_bytes(&self.path, self.bytes(), old)?;
+            let old = rkyv::access::<ArchivedFlatSection1_5, rancor::Error>(&bytes)
+                .map_err(|e| bad(TAG_FLAT, e.to_string()))?;
+            return Ok(StoredFlat::OtherRule(old.rule()));
+        };
+        let bad = |detail: String| bad(TAG_FLAT2, detail);
         let bytes = container::section_bytes(&self.path, self.bytes(), entry)?;
         let section = rkyv::access::<ArchivedFlatSection, rancor::Error>(&bytes)
             .map_err(|e| bad(e.to_string()))?;

@@ -7,7 +7,11 @@
 //! has support, the expansion there is a sum of coarser levels only and the points of level
 //! `l` add nothing the coarser ones do not represent. So point `j` of level `l` is kept when
 //! some point of level `l` or finer that has links has a positive weight (Eq. 8) at `p_j`;
-//! every point of level 0 is kept.
+//! every point of level 0 is kept. Of those, a point of a coarser level is then left out where
+//! the kept points of the finer levels already cover it ([`FINER_COVER`]): the finer points
+//! represent everything the coarser one would add there, and a flat set of one density
+//! interpolates better than the union of every level's points (a coarse point a few
+//! millimetres from a fine one makes uneven weights) at fewer functions per pixel.
 //!
 //! Radii: each flat point's support radius comes from the density of the flat point set
 //! around it, [`FLAT_RADIUS_FACTOR`] times the distance (Eq. 11's metric) to its
@@ -49,11 +53,19 @@ pub const HOLE_REACH: f32 = 0.7;
 /// still cover the strip between the last points and the rim.
 pub const HOLE_PROBE: f32 = 0.5;
 
+/// A needed point of a coarser level is left out where the kept points of the finer levels
+/// have weights (Eq. 8, their hierarchical radii) summing to at least this at it: about three
+/// finer functions reach it with weight 1, so the finer set is dense all around it. Lower
+/// values leave out more, and at 1 to 2 a narrow step in a wall next to finer points (seen on
+/// Sponza) is left uncovered where the finer points' flat radii, smaller than their
+/// hierarchical ones, stop short of it.
+pub const FINER_COVER: f32 = 3.0;
+
 /// The most neighbours [`FlatRule::neighbours`] may name.
 pub const MAX_NEIGHBOURS: usize = 16;
 
 /// The parameters of the rule that builds a flat basis ([`FlatBasis::build_with`]); stored in
-/// a file's `FLAT` section with the basis it built.
+/// a file's `FLT2` section with the basis it built.
 #[derive(Clone, Copy, Debug, PartialEq, rkyv::Archive, rkyv::Serialize, rkyv::Deserialize)]
 pub struct FlatRule {
     /// The neighbour whose distance sets a flat point's radius (1 to [`MAX_NEIGHBOURS`]).
@@ -64,17 +76,22 @@ pub struct FlatRule {
     pub hole_weight: f32,
     /// The fraction of the grown radius at which a hole's point then lies.
     pub hole_reach: f32,
+    /// A needed point of a coarser level is left out where the kept finer points' weights sum
+    /// to at least this at it ([`FINER_COVER`]); 0 keeps every needed point (the rule of
+    /// format 1.5).
+    pub finer_cover: f32,
 }
 
 impl FlatRule {
     /// The rule of this build ([`FLAT_NEIGHBOURS`], [`FLAT_RADIUS_FACTOR`], [`HOLE_WEIGHT`],
-    /// [`HOLE_REACH`]).
+    /// [`HOLE_REACH`], [`FINER_COVER`]).
     pub fn current() -> FlatRule {
         FlatRule {
             neighbours: FLAT_NEIGHBOURS as u32,
             radius_factor: FLAT_RADIUS_FACTOR,
             hole_weight: HOLE_WEIGHT,
             hole_reach: HOLE_REACH,
+            finer_cover: FINER_COVER,
         }
     }
 }
@@ -108,7 +125,9 @@ impl FlatBasis {
             && rule.radius_factor > 0.0
             && rule.hole_weight.is_finite()
             && rule.hole_reach > 0.0
-            && rule.hole_reach <= 1.0;
+            && rule.hole_reach <= 1.0
+            && rule.finer_cover.is_finite()
+            && rule.finer_cover >= 0.0;
         if !valid {
             return Err(FormatError::InvalidBasis(format!("flat rule {rule:?}")));
         }
@@ -121,7 +140,7 @@ impl FlatBasis {
                 )));
             }
         }
-        let kept = needed_points(hier, linked);
+        let kept = needed_points(hier, linked, rule.finer_cover);
         let mut source: Vec<u32> = Vec::with_capacity(kept.len());
         let positions: Vec<[f32; 3]> = kept.iter().map(|&j| b.positions[j as usize]).collect();
         for i in morton_order(&positions) {
@@ -266,8 +285,21 @@ impl FlatBasis {
 }
 
 /// The hierarchical points the flat basis keeps (ascending): all of level 0, and a point of
-/// level `l` where a point of level `l` or finer with links has support.
-fn needed_points(hier: &IndexedBasis, linked: Option<&[bool]>) -> Vec<u32> {
+/// level `l` where a point of level `l` or finer with links has support; then, with
+/// `finer_cover > 0`, a point of a coarser level is left out where the kept points of the
+/// finer levels have weights summing to at least `finer_cover` at it. Without link flags every
+/// point is kept (the basis-floor oracle has detail at every level).
+fn needed_points(hier: &IndexedBasis, linked: Option<&[bool]>, finer_cover: f32) -> Vec<u32> {
+    let needed = linked_support(hier, linked);
+    if finer_cover <= 0.0 || linked.is_none() {
+        return needed;
+    }
+    covered_by_finer(hier, needed, finer_cover)
+}
+
+/// [`needed_points`]'s first step: the points of level 0 and those where a point of the same
+/// or a finer level with links has support.
+fn linked_support(hier: &IndexedBasis, linked: Option<&[bool]>) -> Vec<u32> {
     use rayon::prelude::*;
     let b = &hier.basis;
     let Some(linked) = linked else {
@@ -289,6 +321,36 @@ fn needed_points(hier: &IndexedBasis, linked: Option<&[bool]>) -> Vec<u32> {
             })
         })
         .map(|j| j as u32)
+        .collect()
+}
+
+/// [`needed_points`]'s second step: the points of `needed` (ascending) less those of a level
+/// above the finest where the other points of `needed` of the finer levels have weights
+/// summing to at least `finer_cover`. Each point is judged against the same set, so the result
+/// does not depend on the order or the thread count.
+fn covered_by_finer(hier: &IndexedBasis, needed: Vec<u32>, finer_cover: f32) -> Vec<u32> {
+    use rayon::prelude::*;
+    let b = &hier.basis;
+    let levels = hier.levels();
+    let mut is_needed = vec![false; b.len()];
+    for &j in &needed {
+        is_needed[j as usize] = true;
+    }
+    needed
+        .into_par_iter()
+        .filter(|&j| {
+            let j = j as usize;
+            let (x, n) = (b.positions[j], b.normals[j]);
+            let mut sum = 0.0f32;
+            for m in b.level_of(j) + 1..levels {
+                hier.for_each_weight(m, x, n, |k, w| {
+                    if is_needed[k] {
+                        sum += w;
+                    }
+                });
+            }
+            sum < finer_cover
+        })
         .collect()
 }
 
@@ -465,10 +527,77 @@ mod tests {
         let linked: Vec<bool> = (0..n).map(|k| ib.basis.level_of(k) == 0).collect();
         let fb = FlatBasis::build(&ib, Some(&linked)).unwrap();
         assert_eq!(fb.len(), ib.basis.level_range(0).len());
-        // Links on the finest level everywhere: every point is needed.
+        // Links on the finest level everywhere: every point is needed (and, by the default
+        // rule, the coarser ones are then covered by the finer ones: the next test).
         let linked = vec![true; n];
-        assert_eq!(FlatBasis::build(&ib, Some(&linked)).unwrap().len(), n);
+        let keep_all = FlatRule {
+            finer_cover: 0.0,
+            ..FlatRule::current()
+        };
+        let fb = FlatBasis::build_with(&ib, Some(&linked), keep_all).unwrap();
+        assert_eq!(fb.len(), n);
         assert!(FlatBasis::build(&ib, Some(&linked[1..])).is_err());
+    }
+
+    #[test]
+    fn coarser_points_that_finer_ones_cover_are_left_out() {
+        let ib = plane_basis(4, 3);
+        let b = &ib.basis;
+        let n = b.len();
+        let linked = vec![true; n];
+        let fb = FlatBasis::build(&ib, Some(&linked)).unwrap();
+        let finest = b.level_range(3);
+        let mut kept = vec![false; n];
+        for &j in &fb.source {
+            kept[j as usize] = true;
+        }
+        // The finest level is kept whole; of the coarser levels, only points near the square's
+        // rim (where fewer finer functions reach) may stay.
+        assert!(finest.clone().all(|j| kept[j]));
+        let coarser: Vec<usize> = (0..finest.start).filter(|&j| kept[j]).collect();
+        assert!(
+            coarser.len() * 4 < finest.start,
+            "{} coarser kept",
+            coarser.len()
+        );
+        for &j in &coarser {
+            let mut sum = 0.0;
+            for m in b.level_of(j) + 1..4 {
+                sum += ib.weight_sum(m, b.positions[j], b.normals[j]);
+            }
+            assert!(sum < FINER_COVER, "point {j} kept under {sum}");
+        }
+        // Every surface point stays covered, and a smooth solution is flattened as well as
+        // with every point kept.
+        let keep_all = FlatRule {
+            finer_cover: 0.0,
+            ..FlatRule::current()
+        };
+        let all = FlatBasis::build_with(&ib, Some(&linked), keep_all).unwrap();
+        let f = |p: [f32; 3]| 2.0 + (3.0 * p[0]).sin() * (2.0 * p[1]).cos();
+        let samples: Vec<f32> = b.positions.iter().map(|&p| f(p)).collect();
+        let (alpha, _) = project(&ib, &samples, 1);
+        let worst = |fb: &FlatBasis| {
+            let flat = fb.flatten(&ib, &alpha, 1);
+            let (mut h, mut fl) = ([0.0], [0.0]);
+            let mut worst = 0.0f32;
+            for q in 0..200 {
+                let x = [0.1 + 0.004 * q as f32, 0.85 - 0.0035 * q as f32, 0.0];
+                let nn = [0.0, 0.0, 1.0];
+                ib.reconstruct(&alpha, 1, 0..4, x, nn, &mut h);
+                assert_eq!(fb.reconstruct(&flat, 1, x, nn, &mut fl).supported, 1);
+                worst = worst.max((h[0] - fl[0]).abs() / h[0]);
+            }
+            worst
+        };
+        let (pruned, every) = (worst(&fb), worst(&all));
+        assert!(
+            pruned < 0.02 && pruned <= every * 1.1,
+            "{pruned} against {every}"
+        );
+        for j in 0..n {
+            assert!(fb.coverage(b.positions[j], b.normals[j]) >= 1, "point {j}");
+        }
     }
 
     #[test]

@@ -1,4 +1,4 @@
-//! The `FLAT` section (format 1.5): the one-level flat basis ([`FlatBasis`]) as the bake built
+//! The `FLT2` section (format 1.6; `FLAT` in 1.5): the one-level flat basis ([`FlatBasis`]) as the bake built
 //! it, so that a viewer reads it instead of building it when it opens a file.
 //!
 //! The flat basis depends only on the hierarchical basis, on which receivers have links of S
@@ -15,7 +15,9 @@
 //! by its own rule instead: [`StoredFlat::OtherRule`]); a section whose point count or link key
 //! differs from the file's own basis and links, or whose arrays are inconsistent (an index out
 //! of range or repeated, a radius not finite and positive, a tree that does not bound its
-//! points), is a corrupt file.
+//! points), is a corrupt file. Format 1.5 stored the section under `FLAT`, with the rule
+//! without `finer_cover` ([`FlatSection1_5`]); a reader takes only the rule from it, always
+//! another rule than this build's (it kept every needed point), and builds the flat basis.
 
 use xxhash_rust::xxh3::Xxh3;
 
@@ -25,7 +27,7 @@ pub use crate::flat_basis::FlatRule;
 use crate::rtree::RTree;
 use crate::shepard::IndexedBasis;
 
-/// The `FLAT` section.
+/// The `FLT2` section.
 #[derive(Clone, Debug, PartialEq, rkyv::Archive, rkyv::Serialize, rkyv::Deserialize)]
 pub struct FlatSection {
     /// Points of the hierarchical basis it was built on.
@@ -42,12 +44,12 @@ pub struct FlatSection {
     pub tree: RTree,
 }
 
-/// What a file's `FLAT` section gave a reader.
+/// What a file's `FLT2` (or 1.5 `FLAT`) section gave a reader.
 #[derive(Debug)]
 pub enum StoredFlat {
     /// The stored flat basis, checked against the file's basis and links.
     Stored(FlatBasis),
-    /// The file has no `FLAT` section (written before format 1.5, or without transport).
+    /// The file has neither section (written before format 1.5, or without transport).
     Absent,
     /// The section was built by another rule than this build's ([`FlatRule::current`]).
     OtherRule(FlatRule),
@@ -106,6 +108,7 @@ impl ArchivedFlatSection {
             radius_factor: self.rule.radius_factor.to_native(),
             hole_weight: self.rule.hole_weight.to_native(),
             hole_reach: self.rule.hole_reach.to_native(),
+            finer_cover: self.rule.finer_cover.to_native(),
         }
     }
 
@@ -145,5 +148,72 @@ impl ArchivedFlatSection {
         let tree: RTree = rkyv::deserialize::<RTree, rkyv::rancor::Error>(&self.tree)
             .map_err(|e| format!("R-tree: {e}"))?;
         FlatBasis::from_parts_with_tree(hier, source, radii, tree).map_err(|e| e.to_string())
+    }
+}
+
+/// The rule of a format 1.5 `FLAT` section: [`FlatRule`] without `finer_cover` (every needed
+/// point was kept).
+#[derive(Clone, Copy, Debug, PartialEq, rkyv::Archive, rkyv::Serialize, rkyv::Deserialize)]
+pub struct FlatRule1_5 {
+    pub neighbours: u32,
+    pub radius_factor: f32,
+    pub hole_weight: f32,
+    pub hole_reach: f32,
+}
+
+/// The layout of the `FLAT` section in format 1.5, read for its rule only.
+#[derive(Clone, Debug, PartialEq, rkyv::Archive, rkyv::Serialize, rkyv::Deserialize)]
+pub struct FlatSection1_5 {
+    pub points: u32,
+    pub linked_key: u64,
+    pub rule: FlatRule1_5,
+    pub source: Vec<u32>,
+    pub radii: Vec<f32>,
+    pub tree: RTree,
+}
+
+impl FlatSection1_5 {
+    /// `section` as format 1.5 stored it (its rule less `finer_cover`); for tests of readers.
+    pub fn from_current(section: &FlatSection) -> FlatSection1_5 {
+        let r = section.rule;
+        FlatSection1_5 {
+            points: section.points,
+            linked_key: section.linked_key,
+            rule: FlatRule1_5 {
+                neighbours: r.neighbours,
+                radius_factor: r.radius_factor,
+                hole_weight: r.hole_weight,
+                hole_reach: r.hole_reach,
+            },
+            source: section.source.clone(),
+            radii: section.radii.clone(),
+            tree: section.tree.clone(),
+        }
+    }
+}
+
+impl FlatSection1_5 {
+    /// The section's bytes as format 1.5 stored them under `FLAT`; for tests of readers.
+    pub fn archive(&self) -> Result<Vec<u8>, FormatError> {
+        rkyv::to_bytes::<rkyv::rancor::Error>(self)
+            .map(|b| b.to_vec())
+            .map_err(|e| FormatError::Serialize {
+                tag: "FLAT".into(),
+                detail: e.to_string(),
+            })
+    }
+}
+
+impl ArchivedFlatSection1_5 {
+    /// The section's rule as a [`FlatRule`]: `finer_cover` 0, since format 1.5 kept every
+    /// needed point.
+    pub fn rule(&self) -> FlatRule {
+        FlatRule {
+            neighbours: self.rule.neighbours.to_native(),
+            radius_factor: self.rule.radius_factor.to_native(),
+            hole_weight: self.rule.hole_weight.to_native(),
+            hole_reach: self.rule.hole_reach.to_native(),
+            finer_cover: 0.0,
+        }
     }
 }

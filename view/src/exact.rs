@@ -85,6 +85,47 @@ pub fn flat_indirect(
     })
 }
 
+/// The flat image with each covering flat point's value taken at the pixel's own normal,
+/// `sum_i w_i(x, n) F(p_i, n) / sum_i w_i(x, n)` with `F` the hierarchical expansion of `i`
+/// (Eq. 6), where the flat coefficients hold `F(p_i, n_i)`. Eq. 6 depends on the normal
+/// through the weights' `(n . n_k)^2` (which functions of each level a surface point
+/// averages), which one coefficient per flat point cannot carry; against [`exact_indirect`]
+/// this image keeps everything else flattening changes (with the values not sharpened). For
+/// diagnosis only: a hierarchical evaluation per covering function and pixel.
+pub fn flat_indirect_at_pixel_normals(
+    fb: &FlatBasis,
+    ib: &IndexedBasis,
+    i: &[f32],
+    points: &[Option<SurfacePoint>],
+    width: u32,
+) -> RgbImage {
+    let b = &ib.basis;
+    image(points, width, |p| {
+        let mut acc = [0.0f32; LINK_DIM];
+        let mut e = [0.0f32; LINK_DIM];
+        let sum = fb.ib.for_each_weight(0, p.position, p.normal, |q, w| {
+            let j = fb.source[q] as usize;
+            ib.reconstruct(
+                i,
+                LINK_DIM,
+                0..ib.levels(),
+                b.positions[j],
+                p.normal,
+                &mut e,
+            );
+            for (a, v) in acc.iter_mut().zip(&e) {
+                *a += w * v;
+            }
+        });
+        if sum > mlt_format::shepard::MIN_WEIGHT_SUM {
+            acc.iter_mut().for_each(|a| *a /= sum);
+        } else {
+            acc = [0.0; LINK_DIM];
+        }
+        shade(p, &acc)
+    })
+}
+
 /// Number of flat functions covering each pixel (`None` where no surface is seen).
 pub fn flat_coverage(fb: &FlatBasis, points: &[Option<SurfacePoint>]) -> Vec<Option<usize>> {
     points

@@ -1,7 +1,7 @@
-//! The `FLAT` section (format 1.5): a bake stores the flat basis that `FlatBasis::build` gives
-//! for its basis and links; the viewer reads it instead of building it, renders the same image
-//! from a file without it (format 1.4), and refuses a damaged or inconsistent one with an
-//! error naming the file.
+//! The `FLT2` section (format 1.6; `FLAT` in 1.5): a bake stores the flat basis that
+//! `FlatBasis::build` gives for its basis and links; the viewer reads it instead of building
+//! it, renders the same image from a file without it (format 1.4) or with a 1.5 section (by
+//! an older rule), and refuses a damaged or inconsistent one with an error naming the file.
 
 mod common;
 
@@ -12,7 +12,7 @@ use common::bake_to;
 use mlt_bake::BakeOptions;
 use mlt_format::container::VERSION_MINOR;
 use mlt_format::flat_basis::FlatBasis;
-use mlt_format::flat_section::{linked_flags, StoredFlat};
+use mlt_format::flat_section::{linked_flags, FlatRule, StoredFlat};
 use mlt_format::{BakeContents, BakedFile, FormatError, WriteOptions};
 
 fn small_opts() -> BakeOptions {
@@ -102,6 +102,82 @@ fn a_bake_stores_the_flat_basis_and_the_viewer_reads_it() {
     }
 }
 
+/// `path`'s sections re-encoded with its `FLT2` section as format 1.5 wrote it (under `FLAT`,
+/// the rule without `finer_cover`), as format 1.5.
+fn write_as_1_5(path: &Path, out: &Path) {
+    use mlt_format::container::{self, SectionIn};
+    use mlt_format::flat_section::FlatSection1_5;
+    let bytes = std::fs::read(path).unwrap();
+    let header = container::parse_header(path, &bytes).unwrap();
+    let sections: Vec<([u8; 4], Vec<u8>)> = header
+        .sections
+        .iter()
+        .map(|e| {
+            let b = container::section_bytes(path, &bytes, e).unwrap().to_vec();
+            if &e.tag != b"FLT2" {
+                return (e.tag, b);
+            }
+            let current = BakedFile::open(path)
+                .unwrap()
+                .flat_section()
+                .unwrap()
+                .unwrap();
+            let old = FlatSection1_5::from_current(&current);
+            (*b"FLAT", old.archive().unwrap())
+        })
+        .collect();
+    let ins: Vec<SectionIn> = sections
+        .iter()
+        .map(|(tag, bytes)| SectionIn {
+            tag: *tag,
+            bytes,
+            compress: false,
+        })
+        .collect();
+    let mut bytes = container::encode(&ins, header.input_key).unwrap();
+    bytes[10..12].copy_from_slice(&5u16.to_le_bytes());
+    assert!(container::reseal(&mut bytes));
+    std::fs::write(out, bytes).unwrap();
+}
+
+/// A format 1.5 file's `FLAT` section (which kept every needed point) is read for its rule
+/// only: another rule than this build's, so the viewer builds the flat basis and renders the
+/// image of the 1.6 file.
+#[test]
+fn a_format_1_5_flat_section_is_read_for_its_rule() {
+    let d = common::temp_dir("flat_section", "format_1_5");
+    let f = d.join("cornell.mlt");
+    bake_to(&f, "builtin:cornell", small_opts());
+    let old = d.join("old.mlt");
+    write_as_1_5(&f, &old);
+    let (old_file, contents, linked) = open(&old);
+    assert_eq!(old_file.header().minor, 5);
+    assert!(contents.flat.is_none());
+    let current = FlatRule::current();
+    match old_file.flat_basis(&contents.basis, &linked).unwrap() {
+        StoredFlat::OtherRule(rule) => assert_eq!(
+            rule,
+            FlatRule {
+                finer_cover: 0.0,
+                ..current
+            }
+        ),
+        other => panic!("expected the 1.5 rule, got {other:?}"),
+    }
+    let (a, b) = (d.join("a"), d.join("b"));
+    for (file, out) in [(&f, &a), (&old, &b)] {
+        let r = render(file, out);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    }
+    for image in ["final.exr", "indirect.exr"] {
+        let (x, y) = (
+            std::fs::read(a.join(image)).unwrap(),
+            std::fs::read(b.join(image)).unwrap(),
+        );
+        assert!(x == y, "{image} differs between the 1.6 and the 1.5 file");
+    }
+}
+
 /// A flat section that does not belong to the file's basis and links, or that is malformed,
 /// is an error naming the file and the section, from the library and from `view`.
 #[test]
@@ -136,7 +212,7 @@ fn an_inconsistent_flat_section_is_an_error_naming_the_file() {
             .expect_err(what)
             .to_string();
         assert!(
-            e.contains("bad.mlt") && e.contains("FLAT") && e.contains(what),
+            e.contains("bad.mlt") && e.contains("FLT2") && e.contains(what),
             "{what}: {e}"
         );
     }
@@ -158,9 +234,13 @@ fn an_inconsistent_flat_section_is_an_error_naming_the_file() {
     // checks refuse it; never a panic. From `view`, the error names the file.
     let mut bytes = std::fs::read(&f).unwrap();
     let header = mlt_format::container::parse_header(&f, &bytes).unwrap();
-    let entry = header.sections.iter().find(|e| &e.tag == b"FLAT").unwrap();
-    let at = entry.offset as usize + entry.stored_len as usize - 4;
-    bytes[at..at + 4].copy_from_slice(&u32::MAX.to_le_bytes());
+    let entry = header.sections.iter().find(|e| &e.tag == b"FLT2").unwrap();
+    // The root object ends the section: point its `source` array far out of the section.
+    use mlt_format::flat_section::ArchivedFlatSection;
+    let root = entry.offset as usize + entry.stored_len as usize
+        - std::mem::size_of::<ArchivedFlatSection>();
+    let at = root + std::mem::offset_of!(ArchivedFlatSection, source);
+    bytes[at..at + 4].copy_from_slice(&0x7fff_fff0u32.to_le_bytes());
     assert!(mlt_format::container::reseal(&mut bytes));
     let p = d.join("damaged.mlt");
     std::fs::write(&p, bytes).unwrap();
@@ -178,7 +258,7 @@ fn an_inconsistent_flat_section_is_an_error_naming_the_file() {
     assert!(!r.status.success());
     let stderr = String::from_utf8_lossy(&r.stderr);
     assert!(
-        stderr.contains("damaged.mlt") && stderr.contains("FLAT"),
+        stderr.contains("damaged.mlt") && stderr.contains("FLT2"),
         "{stderr}"
     );
 }

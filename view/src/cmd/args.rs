@@ -110,8 +110,9 @@ pub struct RelightArgs {
     pub feedback_lag: FeedbackLag,
     /// For experiments: build the flat basis with this neighbour count and radius factor
     /// (`K,F`: each flat radius F times the distance to the K-th nearest flat point; `K,F,H,R`
-    /// also sets the hole weight and reach) instead of reading the file's or building it by
-    /// the default rule.
+    /// also sets the hole weight and reach, `K,F,H,R,C` the finer cover above which a coarser
+    /// point is left out, 0 keeping every needed point) instead of reading the file's or
+    /// building it by the default rule.
     #[arg(long, value_parser = parse_flat_rule)]
     pub flat_rule: Option<FlatRule>,
 }
@@ -138,7 +139,7 @@ impl FeedbackLag {
     }
 }
 
-/// `K,F[,H,R]` for [`RelightArgs::flat_rule`].
+/// `K,F[,H,R[,C]]` for [`RelightArgs::flat_rule`].
 fn parse_flat_rule(s: &str) -> Result<FlatRule, String> {
     let parts: Vec<&str> = s.split(',').map(str::trim).collect();
     let [k, f, rest @ ..] = parts.as_slice() else {
@@ -155,16 +156,24 @@ fn parse_flat_rule(s: &str) -> Result<FlatRule, String> {
         radius_factor: f,
         ..FlatRule::current()
     };
-    match rest {
-        [] => {}
-        [h, r] => {
-            rule.hole_weight = h.parse().map_err(|e| format!("{h}: {e}"))?;
-            rule.hole_reach = r.parse().map_err(|e| format!("{r}: {e}"))?;
-            if !(rule.hole_weight.is_finite() && rule.hole_reach > 0.0 && rule.hole_reach <= 1.0) {
-                return Err(format!("H must be finite and R in (0, 1], got {s}"));
-            }
+    let (holes, cover) = match rest {
+        [] => (None, None),
+        [h, r] => (Some((h, r)), None),
+        [h, r, c] => (Some((h, r)), Some(c)),
+        _ => return Err(format!("expected K,F or K,F,H,R or K,F,H,R,C, got {s}")),
+    };
+    if let Some((h, r)) = holes {
+        rule.hole_weight = h.parse().map_err(|e| format!("{h}: {e}"))?;
+        rule.hole_reach = r.parse().map_err(|e| format!("{r}: {e}"))?;
+        if !(rule.hole_weight.is_finite() && rule.hole_reach > 0.0 && rule.hole_reach <= 1.0) {
+            return Err(format!("H must be finite and R in (0, 1], got {s}"));
         }
-        _ => return Err(format!("expected K,F or K,F,H,R, got {s}")),
+    }
+    if let Some(c) = cover {
+        rule.finer_cover = c.parse().map_err(|e| format!("{c}: {e}"))?;
+        if !(rule.finer_cover.is_finite() && rule.finer_cover >= 0.0) {
+            return Err(format!("C must be finite and not negative, got {s}"));
+        }
     }
     Ok(rule)
 }
