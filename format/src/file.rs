@@ -37,8 +37,10 @@ pub const TAG_LINKS: [u8; 4] = *b"SLNK";
 pub const TAG_REPORT: [u8; 4] = *b"TRPT";
 /// A shard's share of T (shard files only).
 pub const TAG_SHARD: [u8; 4] = *b"TSHD";
-/// Added in format 1.5: the one-level flat basis ([`FlatSection`]); optional, so older files
-/// still read (a viewer then builds the flat basis when it opens them).
+/// Added in format 1.5: the one-level flat basis of that format's rule
+/// ([`crate::flat_section::FlatSection1_5`]); optional, so older files still read (a viewer
+/// then builds the flat basis when it opens them). Since 1.6 bakes write `FLT2` instead, and
+/// readers take only the rule from a `FLAT` section.
 pub const TAG_FLAT: [u8; 4] = *b"FLAT";
 /// Added in format 1.6, written instead of `FLAT`: the flat basis by a rule with
 /// `finer_cover` ([`FlatSection`]). A file with only a `FLAT` section
