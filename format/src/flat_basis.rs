@@ -208,6 +208,15 @@ impl FlatBasis {
         Ok(flat)
     }
 
+    /// The level in `hier` (the hierarchical basis it was built on) of the point each flat
+    /// point is.
+    pub fn source_levels(&self, hier: &Basis) -> Vec<u32> {
+        self.source
+            .iter()
+            .map(|&j| hier.level_of(j as usize) as u32)
+            .collect()
+    }
+
     /// Number of flat points.
     pub fn len(&self) -> usize {
         self.source.len()

@@ -62,10 +62,15 @@ pub struct CpuMedians {
     pub total: f64,
 }
 
+/// Median milliseconds of the renderer's stages per frame (`gpu_median_ms` in
+/// `timings.json`): the GPU passes, timed on their own, and the culling before them.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct GpuMedians {
     /// The flattening compute pass (0 when flattening runs on the CPU).
     pub flatten: f64,
+    /// The renderer's frustum culling, which runs on the CPU (the flat R-tree's walk and the
+    /// upload of the visible list) but belongs to the renderer's stages, so it is counted here
+    /// and in this `total`.
     pub cull: f64,
     pub gbuffer: f64,
     pub shadow: f64,

@@ -172,8 +172,10 @@ impl App<'_> {
         };
         surface.configure(&gpu.device, &config);
         let mesh = GpuMesh::from_scene(self.setup.scene);
-        let flat = self.setup.relighter.flat_basis().ib.clone();
-        let mut renderer = Renderer::new(&gpu, &mesh, &flat.basis, self.setup.shadow_res)?;
+        let fb = self.setup.relighter.flat_basis();
+        let hier = &self.setup.ib.basis;
+        let mut renderer = Renderer::for_flat(&gpu, &mesh, fb, hier, self.setup.shadow_res)?;
+        let flat = fb.ib.clone();
         if self.setup.gpu_flatten.unwrap_or(!gpu.is_software()) {
             FrameDriver {
                 gpu: &gpu,

@@ -329,6 +329,17 @@ fn window_opens_under_xvfb_and_saves_every_view() {
         assert_eq!(img.dimensions(), (96, 72), "{mode}");
         let lit = img.pixels().filter(|p| p.0.iter().any(|&c| c > 10)).count();
         assert!(lit > 96 * 72 / 4, "{mode}: only {lit} lit pixels");
+        if mode == "level-used" {
+            // The flat points come from several levels of the hierarchy (finer ones at the
+            // box's edges and contacts): the view shows more than one colour, as it did not
+            // while the renderer took the flat basis' own single level.
+            let colours: std::collections::HashSet<[u8; 3]> = img.pixels().map(|p| p.0).collect();
+            assert!(
+                colours.len() > 10,
+                "level view of {} colours",
+                colours.len()
+            );
+        }
     }
 }
 

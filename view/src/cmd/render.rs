@@ -73,9 +73,10 @@ pub fn run(args: &RenderArgs) -> Result<()> {
 fn images(args: &RenderArgs, v: &mut Viewing<'_>) -> Result<Timings> {
     let gpu = Gpu::headless().context("starting the GPU for headless rendering")?;
     let mesh = GpuMesh::from_scene(v.scene);
-    let flat = v.relighter.flat_basis().ib.clone();
-    let mut renderer = Renderer::new(&gpu, &mesh, &flat.basis, args.gpu.shadow_res)
+    let fb = v.relighter.flat_basis();
+    let mut renderer = Renderer::for_flat(&gpu, &mesh, fb, &v.ib.basis, args.gpu.shadow_res)
         .context("setting up the renderer")?;
+    let flat = fb.ib.clone();
     let path_radius = v.path_radius();
     let mut driver = FrameDriver {
         gpu: &gpu,
@@ -111,9 +112,10 @@ fn oracle_images(args: &RenderArgs, v: &mut Viewing<'_>, spp: u32) -> Result<()>
     let mesh = GpuMesh::from_scene(v.scene);
     let mut relighter = OracleRelighter::new(v.ib, &mut v.relighter, o.alpha)
         .context("building the flattening operator over every point")?;
-    let flat = relighter.flat_basis().ib.clone();
-    let mut renderer = Renderer::new(&gpu, &mesh, &flat.basis, args.gpu.shadow_res)
+    let fb = relighter.flat_basis();
+    let mut renderer = Renderer::for_flat(&gpu, &mesh, fb, &v.ib.basis, args.gpu.shadow_res)
         .context("setting up the renderer")?;
+    let flat = fb.ib.clone();
     let mut driver = FrameDriver {
         gpu: &gpu,
         renderer: &mut renderer,

@@ -6,10 +6,10 @@
 //! The G-buffer uses reversed depth (1 at the near plane, [`Camera::reversed_view_proj`]) in a
 //! 32-bit float buffer, so depth precision does not depend on the scene's scale.
 
-use std::ops::Range;
 use std::time::Instant;
 
 use glam::{Mat4, Vec3};
+use mlt_format::flat_basis::FlatBasis;
 use mlt_format::links::LINK_DIM;
 use mlt_format::{Basis, IndexedBasis};
 use mlt_relight::{FlattenOp, Light, SharpenOp};
@@ -74,8 +74,8 @@ pub struct GBuffer {
 pub struct Renderer {
     /// Basis points (each with `LINK_DIM` flat coefficients).
     point_count: usize,
-    /// Each level's range of point indices.
-    level_ranges: Vec<Range<usize>>,
+    /// Levels of the points (of the hierarchy, for a flat basis given its points' levels).
+    levels: usize,
     bounds: (Vec3, Vec3),
     scene: SceneBuffers,
     gbuffer: GBufferPass,
@@ -103,6 +103,30 @@ impl Renderer {
         basis: &Basis,
         shadow_res: u32,
     ) -> Result<Renderer, GpuError> {
+        Self::build(gpu, mesh, basis, None, shadow_res)
+    }
+
+    /// [`Renderer::new`] for a flat basis `flat`, whose points are shown in the level-used and
+    /// points views at the levels of the hierarchical points they are (`hier`'s), not at
+    /// their own basis' one level.
+    pub fn for_flat(
+        gpu: &Gpu,
+        mesh: &GpuMesh,
+        flat: &FlatBasis,
+        hier: &Basis,
+        shadow_res: u32,
+    ) -> Result<Renderer, GpuError> {
+        let levels = flat.source_levels(hier);
+        Self::build(gpu, mesh, &flat.ib.basis, Some(&levels), shadow_res)
+    }
+
+    fn build(
+        gpu: &Gpu,
+        mesh: &GpuMesh,
+        basis: &Basis,
+        levels: Option<&[u32]>,
+        shadow_res: u32,
+    ) -> Result<Renderer, GpuError> {
         let device = &gpu.device;
         let acc_format = if gpu.report.float32_blend {
             wgpu::TextureFormat::Rgba32Float
@@ -110,10 +134,12 @@ impl Renderer {
             wgpu::TextureFormat::Rgba16Float
         };
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let scene = SceneBuffers::new(device, mesh, basis);
+        let scene = SceneBuffers::new(device, mesh, basis, levels);
         let renderer = Renderer {
             point_count: basis.len(),
-            level_ranges: (0..basis.levels()).map(|l| basis.level_range(l)).collect(),
+            levels: levels.map_or(basis.levels(), |l| {
+                l.iter().max().map_or(1, |&m| m as usize + 1)
+            }),
             bounds: mesh.bounds,
             gbuffer: GBufferPass::new(gpu, mesh, &scene),
             shadow: ShadowPass::new(device, shadow_res),
@@ -139,7 +165,7 @@ impl Renderer {
 
     /// The number of levels of the basis.
     pub fn levels(&self) -> usize {
-        self.level_ranges.len()
+        self.levels
     }
 
     /// The accumulation format of the splat sums (`Rgba32Float` where it can be blended).
@@ -370,9 +396,8 @@ impl Renderer {
         let levels = self.levels();
         self.display.set(&gpu.queue, mode, tone, levels, format);
         let level = level.min(levels.saturating_sub(1));
-        let range = self.level_ranges.get(level).cloned().unwrap_or(0..0);
         self.points
-            .set(&gpu.queue, range.start, flat_max_luminance, format);
+            .set(&gpu.queue, level, flat_max_luminance, format);
         let Some(t) = &self.targets else {
             return Err(GpuError::Validation("render before display".into()));
         };
@@ -386,8 +411,8 @@ impl Renderer {
             format,
         };
         self.display.encode(&gpu.device, &mut enc, out);
-        if mode == ViewMode::Points && !range.is_empty() {
-            let points = range.len();
+        if mode == ViewMode::Points && self.point_count > 0 {
+            let points = self.point_count;
             self.points.encode(&gpu.device, &mut enc, out, t, points);
         }
         gpu.queue.submit([enc.finish()]);

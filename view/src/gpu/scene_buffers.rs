@@ -39,7 +39,15 @@ pub struct SceneBuffers {
 }
 
 impl SceneBuffers {
-    pub fn new(device: &wgpu::Device, mesh: &GpuMesh, basis: &Basis) -> SceneBuffers {
+    /// The buffers of `mesh` and `basis`; each point's level is `levels[j]` when given (a flat
+    /// basis' points: the level of the hierarchical point each one is), else its level in
+    /// `basis`.
+    pub fn new(
+        device: &wgpu::Device,
+        mesh: &GpuMesh,
+        basis: &Basis,
+        levels: Option<&[u32]>,
+    ) -> SceneBuffers {
         let vertex_bytes: &[u8] = if mesh.vertices.is_empty() {
             &[0u8; std::mem::size_of::<Vertex>()]
         } else {
@@ -85,21 +93,22 @@ impl SceneBuffers {
             globals,
             globals_layout,
             globals_bg,
-            points: point_buffer(device, basis),
+            points: point_buffer(device, basis, levels),
             coefficients,
             visible,
         }
     }
 }
 
-fn point_buffer(device: &wgpu::Device, basis: &Basis) -> wgpu::Buffer {
+fn point_buffer(device: &wgpu::Device, basis: &Basis, levels: Option<&[u32]>) -> wgpu::Buffer {
     let pts: Vec<PointGpu> = (0..basis.len())
         .map(|j| {
             let p = basis.positions[j];
             let nn = basis.normals[j];
+            let level = levels.map_or(basis.level_of(j), |l| l[j] as usize);
             PointGpu {
                 pos_r: [p[0], p[1], p[2], basis.radii[j]],
-                normal_level: [nn[0], nn[1], nn[2], basis.level_of(j) as f32],
+                normal_level: [nn[0], nn[1], nn[2], level as f32],
                 factor: [1.0, 0.0, 0.0, 0.0],
             }
         })

@@ -1,6 +1,6 @@
 //! The render targets whose size follows the image, all in one place and made again when the
 //! size changes: the G-buffer (world position, shading normal, albedo, reversed depth), the
-//! three splat sums and the linear direct, indirect and final radiance.
+//! two splat sums and the linear direct, indirect and final radiance.
 
 use super::pipeline::{clear_attachment, view};
 
@@ -37,15 +37,17 @@ pub struct Targets {
     pub normal: Target,
     pub albedo: Target,
     pub depth: Target,
-    /// `sum f_j w_j`, `sum f_j w_j c_j` and `sum w_j` of the splatting pass.
-    pub acc: [Target; 3],
+    /// The splatting pass' sums: `acc[0]` holds `sum w_j (n . c_j)` per colour and `sum w_j`,
+    /// `acc[1]` (one channel) `sum w_j level_j` for the level view.
+    pub acc: [Target; 2],
     pub direct: Target,
     pub indirect: Target,
     pub final_: Target,
 }
 
 impl Targets {
-    /// Targets of `width x height` pixels; the splat sums in `acc_format`.
+    /// Targets of `width x height` pixels; the splat sums in `acc_format` (four channels) and
+    /// its one-channel counterpart ([`level_format`]).
     pub fn new(
         device: &wgpu::Device,
         width: u32,
@@ -60,7 +62,10 @@ impl Targets {
             normal: make("gbuffer normal", NORMAL_FORMAT),
             albedo: make("gbuffer albedo", ALBEDO_FORMAT),
             depth: make("gbuffer depth", DEPTH_FORMAT),
-            acc: [0, 1, 2].map(|_| make("splat sums", acc_format)),
+            acc: [
+                make("splat sums", acc_format),
+                make("splat level sum", level_format(acc_format)),
+            ],
             direct: make("direct", RADIANCE_FORMAT),
             indirect: make("indirect", RADIANCE_FORMAT),
             final_: make("final", RADIANCE_FORMAT),
@@ -70,6 +75,16 @@ impl Targets {
     /// True when the targets are `width x height`.
     pub fn fit(&self, width: u32, height: u32) -> bool {
         self.width == width && self.height == height
+    }
+}
+
+/// The one-channel format of the level sum beside the four-channel `acc_format`: 32-bit
+/// floats where those can be blended, 16-bit otherwise.
+pub fn level_format(acc_format: wgpu::TextureFormat) -> wgpu::TextureFormat {
+    if acc_format == wgpu::TextureFormat::Rgba32Float {
+        wgpu::TextureFormat::R32Float
+    } else {
+        wgpu::TextureFormat::R16Float
     }
 }
 

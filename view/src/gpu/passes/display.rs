@@ -83,7 +83,7 @@ pub struct DisplayPass {
 
 impl DisplayPass {
     pub fn new(device: &wgpu::Device) -> DisplayPass {
-        // The parameters; direct, indirect and final radiance; the first and last sums.
+        // The parameters; direct, indirect and final radiance; the splat sums and level sum.
         let slots = [Slot::Uniform(VS_FS), Slot::Textures(5)];
         let size = std::mem::size_of::<DisplayUniform>() as u64;
         DisplayPass {
@@ -96,7 +96,7 @@ impl DisplayPass {
 
     /// Binds the radiance buffers and the splat sums of `t`.
     pub fn attach(&mut self, device: &wgpu::Device, t: &Targets) {
-        let inputs = [&t.direct, &t.indirect, &t.final_, &t.acc[0], &t.acc[2]];
+        let inputs = [&t.direct, &t.indirect, &t.final_, &t.acc[0], &t.acc[1]];
         let mut resources = vec![self.uniform.as_entire_binding()];
         resources.extend(inputs.map(Target::binding));
         self.binding.bind(device, &resources);

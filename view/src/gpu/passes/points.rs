@@ -55,18 +55,18 @@ impl PointsPass {
         }
     }
 
-    /// Draws the points from `first` on, coloured on a log scale up to `flat_max_luminance`,
-    /// into a target of `format`.
+    /// Draws the points of `level`, coloured on a log scale up to `flat_max_luminance`, into
+    /// a target of `format`.
     pub fn set(
         &self,
         queue: &wgpu::Queue,
-        first: usize,
+        level: usize,
         flat_max_luminance: f32,
         format: wgpu::TextureFormat,
     ) {
         let pu = PointsUniform {
             params: [
-                first as f32,
+                level as f32,
                 POINT_SIZE,
                 flat_max_luminance.max(1e-30).log10(),
                 encode_srgb(format),
@@ -75,7 +75,8 @@ impl PointsPass {
         queue.write_buffer(&self.uniform, 0, bytemuck::bytes_of(&pu));
     }
 
-    /// Draws `count` points over `out`, depth-tested against `t`'s depth.
+    /// Draws the chosen level's points among the first `count` over `out`, depth-tested
+    /// against `t`'s depth.
     pub fn encode(
         &mut self,
         device: &wgpu::Device,

@@ -1,4 +1,4 @@
-//! The resolve pass, one full-screen triangle: `E = n . (sum w c / sum w)` from the splat
+//! The resolve pass, one full-screen triangle: `E = sum w (n . c) / sum w` from the splat
 //! sums, indirect radiance `albedo / pi E`, plus the shadow-mapped direct light, written as
 //! linear direct, indirect and final radiance.
 
@@ -19,10 +19,10 @@ pub struct ResolvePass {
 
 impl ResolvePass {
     pub fn new(device: &wgpu::Device) -> ResolvePass {
-        // Globals; G-buffer position, normal, albedo; the three sums; the shadow maps.
+        // Globals; G-buffer position, normal, albedo; the splat sums; the shadow maps.
         let slots = [
             Slot::Uniform(VS_FS),
-            Slot::Textures(6),
+            Slot::Textures(4),
             Slot::DepthArray,
             Slot::Sampler(wgpu::SamplerBindingType::Comparison),
         ];
@@ -46,14 +46,7 @@ impl ResolvePass {
         shadow: &ShadowPass,
     ) {
         let (maps, sampler) = shadow.maps();
-        let inputs = [
-            &t.position,
-            &t.normal,
-            &t.albedo,
-            &t.acc[0],
-            &t.acc[1],
-            &t.acc[2],
-        ];
+        let inputs = [&t.position, &t.normal, &t.albedo, &t.acc[0]];
         let mut resources = vec![scene.globals.as_entire_binding()];
         resources.extend(inputs.map(Target::binding));
         resources.push(wgpu::BindingResource::TextureView(maps));

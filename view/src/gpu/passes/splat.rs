@@ -1,7 +1,9 @@
 //! The splatting pass: every flat basis function that survives frustum culling (one level, on
 //! the points the solution needs, each with a radius from the local density of the flat
 //! points: `mlt_format::flat_basis`) is drawn as a footprint bounding its support sphere;
-//! covered pixels accumulate, with additive blending, `w_j` (Eq. 8) and `w_j c_j`. The
+//! covered pixels accumulate, with additive blending, `w_j` (Eq. 8) and `w_j (n . c_j)` per
+//! colour (`n` the pixel's normal: dotted here, as the resolve pass would, so that each
+//! fragment blends 5 floats, not 10), and `w_j level_j` for the level view. The
 //! footprint lies at the depth of the support sphere's nearest point and is depth-tested
 //! (without writing) against the G-buffer's depth: where the visible surface is in front of
 //! the whole support, the pixel is rejected before the weight is evaluated.
@@ -13,7 +15,7 @@ use crate::gpu::pipeline::{
     Slot, TargetBinding, VS_FS,
 };
 use crate::gpu::scene_buffers::SceneBuffers;
-use crate::gpu::targets::{Target, Targets, DEPTH_FORMAT};
+use crate::gpu::targets::{level_format, Target, Targets, DEPTH_FORMAT};
 
 const SPLAT: &str = include_str!("../shaders/splat.wgsl");
 
@@ -34,7 +36,8 @@ impl SplatPass {
         ];
         let binding = TargetBinding::new(device, "splat", &slots);
         let module = module(device, "splat", SPLAT);
-        let targets = [0; 3].map(|_| color_target(acc_format, Some(additive())));
+        let targets = [acc_format, level_format(acc_format)]
+            .map(|format| color_target(format, Some(additive())));
         let strip = wgpu::PrimitiveTopology::TriangleStrip;
         let mut spec =
             PipelineSpec::procedural("splat", binding.layout(), &module, strip, &targets);
@@ -62,7 +65,7 @@ impl SplatPass {
 
     /// Clears the sums of `t` and splats the first `visible` points of the visible list.
     pub fn encode(&self, enc: &mut wgpu::CommandEncoder, t: &Targets, visible: usize) {
-        let colors = [&t.acc[0], &t.acc[1], &t.acc[2]].map(Target::cleared);
+        let colors = [&t.acc[0], &t.acc[1]].map(Target::cleared);
         let depth = depth_attachment(&t.depth.view, wgpu::LoadOp::Load);
         let mut pass = begin(enc, "splat", &colors, depth);
         if let (Some(bg), true) = (self.binding.group(), visible > 0) {

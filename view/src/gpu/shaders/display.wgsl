@@ -13,8 +13,8 @@ struct Display {
 @group(0) @binding(1) var direct_tex: texture_2d<f32>;
 @group(0) @binding(2) var indirect_tex: texture_2d<f32>;
 @group(0) @binding(3) var final_tex: texture_2d<f32>;
-@group(0) @binding(4) var acc0: texture_2d<f32>;
-@group(0) @binding(5) var acc2: texture_2d<f32>;
+@group(0) @binding(4) var sums: texture_2d<f32>;
+@group(0) @binding(5) var level_sum: texture_2d<f32>;
 
 @vertex
 fn vs(@builtin(vertex_index) vi: u32) -> @builtin(position) vec4<f32> {
@@ -38,10 +38,9 @@ fn fs(@builtin(position) frag: vec4<f32>) -> @location(0) vec4<f32> {
     let mode = i32(d.params.x + 0.5);
     var c: vec3<f32>;
     if mode == 3 {
-        let a0 = textureLoad(acc0, px, 0);
-        let a2 = textureLoad(acc2, px, 0);
-        if a2.w > MIN_WEIGHT_SUM && a0.x > 0.0 {
-            c = heat(a2.z / a0.x / max(d.extra.x - 1.0, 1.0));
+        let w = textureLoad(sums, px, 0).w;
+        if w > MIN_WEIGHT_SUM {
+            c = heat(textureLoad(level_sum, px, 0).x / w / max(d.extra.x - 1.0, 1.0));
         } else {
             c = vec3<f32>(0.0);
         }

@@ -1,5 +1,7 @@
-// Debug view: the basis points of one level as small disks coloured by the luminance of
-// their flat coefficient's irradiance (normal component), on a log scale.
+// Debug view: the basis points of one level (for the flat basis: the level of the
+// hierarchical point each one is) as small disks coloured by the luminance of their flat
+// coefficient's irradiance (normal component), on a log scale. Every point is drawn; those
+// of other levels collapse to nothing.
 
 struct Point {
     pos_r: vec4<f32>,
@@ -8,8 +10,8 @@ struct Point {
 };
 
 struct PointsParams {
-    // x: first point index; y: disk radius as a fraction of r_j; z: log10 of the colour
-    // scale's top; w: 1 to encode sRGB.
+    // x: the level shown; y: disk radius as a fraction of r_j; z: log10 of the colour scale's
+    // top; w: 1 to encode sRGB.
     params: vec4<f32>,
 };
 
@@ -26,8 +28,13 @@ struct VsOut {
 
 @vertex
 fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VsOut {
-    let j = u32(pp.params.x) + ii;
+    let j = ii;
     let p = points[j];
+    if abs(p.normal_level.w - pp.params.x) > 0.5 {
+        var none: VsOut;
+        none.clip = vec4<f32>(0.0);
+        return none;
+    }
     let corner = vec2<f32>(f32(vi & 1u), f32((vi >> 1u) & 1u)) * 2.0 - 1.0;
     let n = p.normal_level.xyz;
     var t = cross(n, vec3<f32>(0.0, 1.0, 0.0));

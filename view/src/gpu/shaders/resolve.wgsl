@@ -1,16 +1,15 @@
-// The resolve pass: divides the splatted sums (Shepard normalisation of the flat basis),
-// dots the vector irradiance with the normal, multiplies by albedo / pi, adds the
-// shadow-mapped direct light. Outputs linear radiance: direct, indirect and final.
+// The resolve pass: divides the splatted sums (Shepard normalisation of the flat basis; the
+// splat pass has dotted the vector irradiance with the normal), clamps at 0, multiplies by
+// albedo / pi, adds the shadow-mapped direct light. Outputs linear radiance: direct,
+// indirect and final.
 
 @group(0) @binding(0) var<uniform> g: Globals;
 @group(0) @binding(1) var gbuf_position: texture_2d<f32>;
 @group(0) @binding(2) var gbuf_normal: texture_2d<f32>;
 @group(0) @binding(3) var gbuf_albedo: texture_2d<f32>;
-@group(0) @binding(4) var acc0: texture_2d<f32>;
-@group(0) @binding(5) var acc1: texture_2d<f32>;
-@group(0) @binding(6) var acc2: texture_2d<f32>;
-@group(0) @binding(7) var shadow_map: texture_depth_2d_array;
-@group(0) @binding(8) var shadow_sampler: sampler_comparison;
+@group(0) @binding(4) var sums: texture_2d<f32>;
+@group(0) @binding(5) var shadow_map: texture_depth_2d_array;
+@group(0) @binding(6) var shadow_sampler: sampler_comparison;
 
 @vertex
 fn vs(@builtin(vertex_index) vi: u32) -> @builtin(position) vec4<f32> {
@@ -78,16 +77,10 @@ fn fs(@builtin(position) frag: vec4<f32>) -> Out {
     }
     let n = textureLoad(gbuf_normal, px, 0).xyz;
     let albedo = textureLoad(gbuf_albedo, px, 0).rgb;
-    let a0 = textureLoad(acc0, px, 0);
-    let a1 = textureLoad(acc1, px, 0);
-    let a2 = textureLoad(acc2, px, 0);
+    let s = textureLoad(sums, px, 0);
     var e_ind = vec3<f32>(0.0);
-    if a2.w > MIN_WEIGHT_SUM && a0.x > 0.0 {
-        let inv = 1.0 / a0.x;
-        let r = vec3<f32>(a0.y, a0.z, a0.w) * inv;
-        let gr = vec3<f32>(a1.x, a1.y, a1.z) * inv;
-        let b = vec3<f32>(a1.w, a2.x, a2.y) * inv;
-        e_ind = max(vec3<f32>(dot(r, n), dot(gr, n), dot(b, n)), vec3<f32>(0.0));
+    if s.w > MIN_WEIGHT_SUM {
+        e_ind = max(s.xyz / s.w, vec3<f32>(0.0));
     }
     let e_dir = light_irradiance(g, x.xyz, n) * visibility(x.xyz, n);
     let k = albedo / PI;
