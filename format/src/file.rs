@@ -276,7 +276,12 @@ impl BakedFile {
     }
 
     fn has_section(&self, tag: [u8; 4]) -> bool {
-        self.header.sections.iter().any(|e| e.tag == tag)
+        self.entry(tag).is_some()
+    }
+
+    /// The section table's entry of `tag`, if the file has that section.
+    fn entry(&self, tag: [u8; 4]) -> Option<&container::SectionEntry> {
+        self.header.sections.iter().find(|e| e.tag == tag)
     }
 
     fn section<T>(&self, tag: [u8; 4]) -> Result<T, FormatError>
@@ -287,15 +292,10 @@ impl BakedFile {
     {
         let tag_str = String::from_utf8_lossy(&tag).into_owned();
         self.check_layout(tag, &tag_str)?;
-        let entry = self
-            .header
-            .sections
-            .iter()
-            .find(|e| e.tag == tag)
-            .ok_or_else(|| FormatError::MissingSection {
-                path: self.path.clone(),
-                tag: tag_str.clone(),
-            })?;
+        let entry = self.entry(tag).ok_or_else(|| FormatError::MissingSection {
+            path: self.path.clone(),
+            tag: tag_str.clone(),
+        })?;
         let bytes = container::section_bytes(&self.path, self.bytes(), entry)?;
         let bad = |detail: String| FormatError::BadSection {
             path: self.path.clone(),
@@ -395,7 +395,7 @@ impl BakedFile {
     /// The bytes of the `SLNK` section, if present: borrowed from the mapping when stored
     /// uncompressed. Pass them to [`access_links`] for zero-copy, validated access.
     pub fn links_bytes(&self) -> Result<Option<SectionBytes<'_>>, FormatError> {
-        match self.header.sections.iter().find(|e| e.tag == TAG_LINKS) {
+        match self.entry(TAG_LINKS) {
             None => Ok(None),
             Some(e) => container::section_bytes(&self.path, self.bytes(), e).map(Some),
         }
@@ -446,33 +446,32 @@ impl BakedFile {
         hier: &IndexedBasis,
         linked: &[bool],
     ) -> Result<StoredFlat, FormatError> {
-        let find = |tag: [u8; 4]| self.header.sections.iter().find(|e| e.tag == tag);
         let bad = |tag: [u8; 4], detail: String| FormatError::BadSection {
             path: self.path.clone(),
             tag: String::from_utf8_lossy(&tag).into_owned(),
             detail,
         };
-        let Some(entry) = find(TAG_FLAT2) else {
-            let Some(old) = find(TAG_FLAT) else {
-                return Ok(StoredFlat::Absent);
-            };
-            let bytes = container::section_bytes(&self.path, self.bytes(), old)?;
-            let old = rkyv::access::<ArchivedFlatSection1_5, rancor::Error>(&bytes)
-                .map_err(|e| bad(TAG_FLAT, e.to_string()))?;
-            return Ok(StoredFlat::OtherRule(old.rule()));
-        };
-        let bad = |detail: String| bad(TAG_FLAT2, detail);
-        let bytes = container::section_bytes(&self.path, self.bytes(), entry)?;
-        let section = rkyv::access::<ArchivedFlatSection, rancor::Error>(&bytes)
-            .map_err(|e| bad(e.to_string()))?;
-        let rule = section.rule();
-        if rule != FlatRule::current() {
-            return Ok(StoredFlat::OtherRule(rule));
+        if let Some(entry) = self.entry(TAG_FLAT2) {
+            let bytes = container::section_bytes(&self.path, self.bytes(), entry)?;
+            let section = rkyv::access::<ArchivedFlatSection, rancor::Error>(&bytes)
+                .map_err(|e| bad(TAG_FLAT2, e.to_string()))?;
+            let rule = section.rule();
+            if rule != FlatRule::current() {
+                return Ok(StoredFlat::OtherRule(rule));
+            }
+            return section
+                .flat_basis(hier, linked)
+                .map(StoredFlat::Stored)
+                .map_err(|detail| bad(TAG_FLAT2, detail));
         }
-        section
-            .flat_basis(hier, linked)
-            .map(StoredFlat::Stored)
-            .map_err(bad)
+        // Format 1.5's section, read for its rule only: always an older rule than this build's.
+        let Some(entry) = self.entry(TAG_FLAT) else {
+            return Ok(StoredFlat::Absent);
+        };
+        let bytes = container::section_bytes(&self.path, self.bytes(), entry)?;
+        let old = rkyv::access::<ArchivedFlatSection1_5, rancor::Error>(&bytes)
+            .map_err(|e| bad(TAG_FLAT, e.to_string()))?;
+        Ok(StoredFlat::OtherRule(old.rule()))
     }
 
     fn bad_links(&self, e: FormatError) -> FormatError {

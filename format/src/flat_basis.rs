@@ -513,6 +513,55 @@ mod tests {
     use crate::pull_push::project;
     use crate::test_support::plane_basis;
 
+    /// The rule of this build less the second step: every needed point kept.
+    fn keep_every_needed_point() -> FlatRule {
+        FlatRule {
+            finer_cover: 0.0,
+            ..FlatRule::current()
+        }
+    }
+
+    /// The projection (Eq. 7) of a smooth function sampled at `ib`'s points.
+    fn smooth_solution(ib: &IndexedBasis) -> Vec<f32> {
+        let f = |p: [f32; 3]| 2.0 + (3.0 * p[0]).sin() * (2.0 * p[1]).cos();
+        let samples: Vec<f32> = ib.basis.positions.iter().map(|&p| f(p)).collect();
+        project(ib, &samples, 1).0
+    }
+
+    /// Surface points of the plane `z = 0` on the segment from `from` by `count` steps of
+    /// `step`, with the plane's normal.
+    fn segment(from: [f32; 2], step: [f32; 2], count: usize) -> Vec<([f32; 3], [f32; 3])> {
+        (0..count)
+            .map(|q| {
+                let t = q as f32;
+                (
+                    [from[0] + step[0] * t, from[1] + step[1] * t, 0.0],
+                    [0.0, 0.0, 1.0],
+                )
+            })
+            .collect()
+    }
+
+    /// The largest relative difference, over `points`, of `fb`'s flat expansion of `alpha`
+    /// (one value per hierarchical point) from the hierarchical one of every level; asserts
+    /// that the flat basis supports each point.
+    fn worst_difference(
+        ib: &IndexedBasis,
+        fb: &FlatBasis,
+        alpha: &[f32],
+        points: &[([f32; 3], [f32; 3])],
+    ) -> f32 {
+        let flat = fb.flatten(ib, alpha, 1);
+        let (mut h, mut f) = ([0.0], [0.0]);
+        let mut worst = 0.0f32;
+        for &(x, n) in points {
+            ib.reconstruct(alpha, 1, 0..ib.levels(), x, n, &mut h);
+            assert_eq!(fb.reconstruct(&flat, 1, x, n, &mut f).supported, 1);
+            worst = worst.max((h[0] - f[0]).abs() / h[0]);
+        }
+        worst
+    }
+
     #[test]
     fn without_link_flags_every_point_is_kept_once() {
         let ib = plane_basis(3, 3);
@@ -539,11 +588,7 @@ mod tests {
         // Links on the finest level everywhere: every point is needed (and, by the default
         // rule, the coarser ones are then covered by the finer ones: the next test).
         let linked = vec![true; n];
-        let keep_all = FlatRule {
-            finer_cover: 0.0,
-            ..FlatRule::current()
-        };
-        let fb = FlatBasis::build_with(&ib, Some(&linked), keep_all).unwrap();
+        let fb = FlatBasis::build_with(&ib, Some(&linked), keep_every_needed_point()).unwrap();
         assert_eq!(fb.len(), n);
         assert!(FlatBasis::build(&ib, Some(&linked[1..])).is_err());
     }
@@ -578,27 +623,10 @@ mod tests {
         }
         // Every surface point stays covered, and a smooth solution is flattened as well as
         // with every point kept.
-        let keep_all = FlatRule {
-            finer_cover: 0.0,
-            ..FlatRule::current()
-        };
-        let all = FlatBasis::build_with(&ib, Some(&linked), keep_all).unwrap();
-        let f = |p: [f32; 3]| 2.0 + (3.0 * p[0]).sin() * (2.0 * p[1]).cos();
-        let samples: Vec<f32> = b.positions.iter().map(|&p| f(p)).collect();
-        let (alpha, _) = project(&ib, &samples, 1);
-        let worst = |fb: &FlatBasis| {
-            let flat = fb.flatten(&ib, &alpha, 1);
-            let (mut h, mut fl) = ([0.0], [0.0]);
-            let mut worst = 0.0f32;
-            for q in 0..200 {
-                let x = [0.1 + 0.004 * q as f32, 0.85 - 0.0035 * q as f32, 0.0];
-                let nn = [0.0, 0.0, 1.0];
-                ib.reconstruct(&alpha, 1, 0..4, x, nn, &mut h);
-                assert_eq!(fb.reconstruct(&flat, 1, x, nn, &mut fl).supported, 1);
-                worst = worst.max((h[0] - fl[0]).abs() / h[0]);
-            }
-            worst
-        };
+        let all = FlatBasis::build_with(&ib, Some(&linked), keep_every_needed_point()).unwrap();
+        let alpha = smooth_solution(&ib);
+        let line = segment([0.1, 0.85], [0.004, -0.0035], 200);
+        let worst = |fb: &FlatBasis| worst_difference(&ib, fb, &alpha, &line);
         let (pruned, every) = (worst(&fb), worst(&all));
         assert!(
             pruned < 0.02 && pruned <= every * 1.1,
@@ -620,16 +648,8 @@ mod tests {
             let p = ib.basis.positions[k];
             alpha[k] = 1.0 + 0.3 * p[0] - 0.2 * p[1];
         }
-        let flat = fb.flatten(&ib, &alpha, 1);
-        let (mut h, mut f) = ([0.0], [0.0]);
-        let mut worst = 0.0f32;
-        for q in 0..100 {
-            let x = [0.2 + 0.006 * q as f32, 0.75 - 0.005 * q as f32, 0.0];
-            let nn = [0.0, 0.0, 1.0];
-            ib.reconstruct(&alpha, 1, 0..3, x, nn, &mut h);
-            assert_eq!(fb.reconstruct(&flat, 1, x, nn, &mut f).supported, 1);
-            worst = worst.max((h[0] - f[0]).abs() / h[0]);
-        }
+        let line = segment([0.2, 0.75], [0.006, -0.005], 100);
+        let worst = worst_difference(&ib, &fb, &alpha, &line);
         assert!(worst < 0.03, "{worst}");
     }
 
@@ -637,18 +657,10 @@ mod tests {
     fn flat_reconstruction_tracks_the_hierarchical_one_with_bounded_coverage() {
         let ib = plane_basis(4, 3);
         let fb = FlatBasis::build(&ib, None).unwrap();
-        let f = |p: [f32; 3]| 2.0 + (3.0 * p[0]).sin() * (2.0 * p[1]).cos();
-        let samples: Vec<f32> = ib.basis.positions.iter().map(|&p| f(p)).collect();
-        let (alpha, _) = project(&ib, &samples, 1);
-        let flat = fb.flatten(&ib, &alpha, 1);
-        let (mut h, mut fl) = ([0.0], [0.0]);
-        let (mut worst, mut covered) = (0.0f32, 0usize);
-        for q in 0..200 {
-            let x = [0.1 + 0.004 * q as f32, 0.85 - 0.0035 * q as f32, 0.0];
-            let n = [0.0, 0.0, 1.0];
-            ib.reconstruct(&alpha, 1, 0..4, x, n, &mut h);
-            assert_eq!(fb.reconstruct(&flat, 1, x, n, &mut fl).supported, 1);
-            worst = worst.max((h[0] - fl[0]).abs() / h[0]);
+        let line = segment([0.1, 0.85], [0.004, -0.0035], 200);
+        let worst = worst_difference(&ib, &fb, &smooth_solution(&ib), &line);
+        let mut covered = 0usize;
+        for &(x, n) in &line {
             let c = fb.coverage(x, n);
             assert!(c >= 1);
             covered += c;

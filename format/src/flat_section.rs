@@ -1,5 +1,5 @@
-//! The `FLT2` section (format 1.6; `FLAT` in 1.5): the one-level flat basis ([`FlatBasis`]) as the bake built
-//! it, so that a viewer reads it instead of building it when it opens a file.
+//! The `FLT2` section (format 1.6; `FLAT` in 1.5): the one-level flat basis ([`FlatBasis`]) as
+//! the bake built it, so that a viewer reads it instead of building it when it opens a file.
 //!
 //! The flat basis depends only on the hierarchical basis, on which receivers have links of S
 //! and on the rule that builds it ([`FlatRule`]: the neighbour count, radius factor and hole
@@ -190,9 +190,7 @@ impl FlatSection1_5 {
             tree: section.tree.clone(),
         }
     }
-}
 
-impl FlatSection1_5 {
     /// The section's bytes as format 1.5 stored them under `FLAT`; for tests of readers.
     pub fn archive(&self) -> Result<Vec<u8>, FormatError> {
         rkyv::to_bytes::<rkyv::rancor::Error>(self)

@@ -77,16 +77,16 @@ pub fn run(cli: &CompareArgs) -> Result<()> {
         return Ok(());
     }
     let c = compare_dirs(&cli.reference, &cli.test).with_context(context)?;
-    let parts = match cli.breakdown {
-        Some((cols, rows)) => Some(breakdown(&cli.reference, &cli.test, cols, rows)?),
-        None => None,
-    };
+    let parts = cli
+        .breakdown
+        .map(|(cols, rows)| breakdown(&cli.reference, &cli.test, cols, rows))
+        .transpose()?;
     if cli.json {
         let mut v = serde_json::to_value(&c)?;
-        if let (Some((tiles, classes)), Some(o)) = (&parts, v.as_object_mut()) {
+        if let (Some(b), Some(o)) = (&parts, v.as_object_mut()) {
             o.insert(
                 "indirect_breakdown".into(),
-                serde_json::json!({"tiles": tiles, "brightness": classes}),
+                serde_json::json!({"tiles": b.tiles, "brightness": b.brightness}),
             );
         }
         println!("{}", serde_json::to_string_pretty(&v)?);
@@ -95,12 +95,12 @@ pub fn run(cli: &CompareArgs) -> Result<()> {
         if let Some(n) = &c.reference_noise {
             println!("reference noise (reference.json): {n}");
         }
-        if let Some((tiles, classes)) = &parts {
-            let (cols, rows) = cli.breakdown.unwrap_or((1, 1));
+        if let Some(b) = &parts {
+            let (cols, rows) = b.grid;
             println!("indirect by tile ({cols}x{rows}, row by row from the top):");
-            print!("{}", format_parts(tiles));
+            print!("{}", format_parts(&b.tiles));
             println!("indirect by the reference's brightness (fifths, darkest first):");
-            print!("{}", format_parts(classes));
+            print!("{}", format_parts(&b.brightness));
         }
     }
     if let Some(out) = &cli.side_by_side {
@@ -127,13 +127,15 @@ fn indirect_pair(reference: &Path, test: &Path) -> Result<(RgbImage, RgbImage)> 
     Ok((r, t))
 }
 
-/// The indirect image's error by tile and by fifth of the reference's brightness.
-fn breakdown(
-    reference: &Path,
-    test: &Path,
-    cols: usize,
-    rows: usize,
-) -> Result<(Vec<Part>, Vec<Part>)> {
+/// The indirect image's error on a grid of tiles and by fifth of the reference's brightness.
+struct Breakdown {
+    /// `(cols, rows)` of the tiles.
+    grid: (usize, usize),
+    tiles: Vec<Part>,
+    brightness: Vec<Part>,
+}
+
+fn breakdown(reference: &Path, test: &Path, cols: usize, rows: usize) -> Result<Breakdown> {
     let (r, t) = indirect_pair(reference, test)?;
     let (w, h) = (r.width as usize, r.height as usize);
     let lum = |img: &RgbImage| -> Vec<f64> {
@@ -147,7 +149,11 @@ fn breakdown(
         cols <= w && rows <= h,
         "a {cols}x{rows} grid is finer than the {w}x{h} image"
     );
-    Ok((by_tiles(&r, &t, w, h, cols, rows), by_brightness(&r, &t, 5)))
+    Ok(Breakdown {
+        grid: (cols, rows),
+        tiles: by_tiles(&r, &t, w, h, cols, rows),
+        brightness: by_brightness(&r, &t, 5),
+    })
 }
 
 /// `[test | reference | |test - reference|]`, tone-mapped alike.

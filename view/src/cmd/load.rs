@@ -123,7 +123,8 @@ pub fn with_viewing<T>(args: &BakedArgs, f: impl FnOnce(Viewing<'_>) -> Result<T
 
 /// The flat basis stored in `file` (`FLT2`, format 1.6), checked against its basis and links;
 /// `None` (build it) for older files and for a section built by another rule than this
-/// build's (a 1.5 file's `FLAT` section always is). A malformed or inconsistent section is an error naming the file.
+/// build's (a 1.5 file's `FLAT` section always is). A malformed or inconsistent section is an
+/// error naming the file.
 fn stored_flat_basis(
     file: &BakedFile,
     ib: &IndexedBasis,
