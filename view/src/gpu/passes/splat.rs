@@ -29,8 +29,8 @@ impl SplatPass {
     pub fn new(device: &wgpu::Device, acc_format: wgpu::TextureFormat) -> SplatPass {
         let slots = [
             Slot::Uniform(VS_FS),
-            Slot::Storage(VS_FS),
-            Slot::Storage(Stages::FRAGMENT),
+            Slot::Storage(Stages::VERTEX),
+            Slot::Storage(Stages::VERTEX),
             Slot::Storage(Stages::VERTEX),
             Slot::Textures(2),
         ];

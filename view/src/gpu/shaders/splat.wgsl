@@ -1,10 +1,15 @@
 // The indirect pass (section 4.1): every flat basis function whose support meets the view is
-// drawn as a screen-space footprint bounding its support sphere; each covered pixel evaluates
-// the weight of Eq. 8 at its G-buffer position and normal and accumulates, with additive
-// blending, the weight and the weighted irradiance `w (n . c)` per colour: the pixel's normal
-// `n` is the same for every function there, so `sum w (n . c) = n . sum w c`, and dotting here
-// blends 5 floats per fragment instead of the 10 of the vector sums (the software rasteriser
-// pays per blended float). The resolve pass divides.
+// drawn as a screen rectangle bounding its support (the squashed sphere of Eq. 10); each
+// covered pixel evaluates the weight of Eq. 8 at its G-buffer position and normal and
+// accumulates, with additive blending, the weight and the weighted irradiance `w (n . c)` per
+// colour: the pixel's normal `n` is the same for every function there, so
+// `sum w (n . c) = n . sum w c`, and dotting here blends 5 floats per fragment instead of the
+// 10 of the vector sums. The resolve pass divides.
+//
+// The vertex shader reads the function's point and coefficients and hands them to its
+// fragments as flat varyings, so that the fragment shader reads only the G-buffer: a software
+// rasteriser runs the fragment shader a dozen times per pixel, and storage-buffer reads there
+// cost it three times the rest of the pass (llvmpipe).
 
 struct Point {
     // xyz: position; w: support radius r_j.
@@ -24,7 +29,13 @@ struct Point {
 
 struct VsOut {
     @builtin(position) clip: vec4<f32>,
-    @location(0) @interpolate(flat) index: u32,
+    // The function's centre and support radius; normal and level; its vector irradiance per
+    // colour (`red.w`: the weight factor).
+    @location(0) @interpolate(flat) pos_r: vec4<f32>,
+    @location(1) @interpolate(flat) normal_level: vec4<f32>,
+    @location(2) @interpolate(flat) red: vec4<f32>,
+    @location(3) @interpolate(flat) green: vec4<f32>,
+    @location(4) @interpolate(flat) blue: vec3<f32>,
 };
 
 @vertex
@@ -42,7 +53,7 @@ fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VsOut
     if d > r * 1.001 {
         let dir = to_c / d;
         // The cone of rays tangent to the support sphere cuts the plane through its centre,
-        // perpendicular to `dir`, in a disk of this radius; the quad bounds that disk.
+        // perpendicular to `dir`, in a disk of this radius; the sphere's footprint bounds it.
         let s = r * d / sqrt(d * d - r * r);
         let depth = dot(to_c, g.cam_forward.xyz);
         if depth - 1.4143 * s > 2.0 * g.cam_pos.w {
@@ -52,17 +63,59 @@ fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VsOut
             }
             let u = normalize(side);
             let v = cross(u, dir);
-            let w = c + (u * corner.x + v * corner.y) * s;
-            let q = g.view_proj * vec4<f32>(w, 1.0);
+            var lo = vec2<f32>(1e30);
+            var hi = vec2<f32>(-1e30);
+            for (var k = 0u; k < 4u; k++) {
+                let e = vec2<f32>(f32(k & 1u), f32(k >> 1u)) * 2.0 - 1.0;
+                let q = g.view_proj * vec4<f32>(c + (u * e.x + v * e.y) * s, 1.0);
+                lo = min(lo, q.xy / q.w);
+                hi = max(hi, q.xy / q.w);
+            }
+            // The support is the squashed sphere of Eq. 10: radius r across the normal and
+            // r / (1 + F) along it, inside the box of those half-extents on the point's
+            // tangent frame. Seen obliquely (a floor towards the horizon) the box's
+            // projection is much smaller than the sphere's; the footprint is the screen
+            // rectangle bounding both, taken where all eight corners lie in front of the
+            // near plane. The tangent axis follows the screen's horizontal, so the box's
+            // projection fills its bounding rectangle well.
+            let nj = p.normal_level.xyz;
+            let right = cross(g.cam_forward.xyz, g.cam_up.xyz);
+            var t1 = right - dot(right, nj) * nj;
+            if length(t1) < 1e-3 {
+                t1 = g.cam_up.xyz - dot(g.cam_up.xyz, nj) * nj;
+            }
+            t1 = normalize(t1) * r;
+            let t2 = cross(nj, t1);
+            let t3 = nj * (r / (1.0 + F_SQUASH));
+            var blo = vec2<f32>(1e30);
+            var bhi = vec2<f32>(-1e30);
+            var front = true;
+            for (var k = 0u; k < 8u; k++) {
+                let e = vec3<f32>(f32(k & 1u), f32((k >> 1u) & 1u), f32(k >> 2u)) * 2.0 - 1.0;
+                let q = g.view_proj * vec4<f32>(c + t1 * e.x + t2 * e.y + t3 * e.z, 1.0);
+                front = front && q.w > g.cam_pos.w;
+                blo = min(blo, q.xy / q.w);
+                bhi = max(bhi, q.xy / q.w);
+            }
+            if front {
+                lo = max(lo, blo);
+                hi = min(hi, bhi);
+            }
             // The depth of the sphere's nearest point (view depth `depth - r`), the same over
             // the whole footprint, for the depth test against the G-buffer.
             let f = g.view_proj * vec4<f32>(c - g.cam_forward.xyz * r, 1.0);
-            clip = vec4<f32>(q.xy, min(f.z / f.w, 1.0) * q.w, q.w);
+            let xy = mix(lo, hi, corner * 0.5 + 0.5);
+            clip = vec4<f32>(xy, min(f.z / f.w, 1.0), 1.0);
         }
     }
     var out: VsOut;
     out.clip = clip;
-    out.index = j;
+    let b = j * 9u;
+    out.pos_r = p.pos_r;
+    out.normal_level = p.normal_level;
+    out.red = vec4<f32>(coeffs[b], coeffs[b + 1u], coeffs[b + 2u], p.factor.x);
+    out.green = vec4<f32>(coeffs[b + 3u], coeffs[b + 4u], coeffs[b + 5u], 0.0);
+    out.blue = vec3<f32>(coeffs[b + 6u], coeffs[b + 7u], coeffs[b + 8u]);
     return out;
 }
 
@@ -81,20 +134,14 @@ fn fs(v: VsOut) -> AccOut {
         discard;
     }
     let n = textureLoad(gbuf_normal, px, 0).xyz;
-    let p = points[v.index];
-    let raw = basis_weight(x.xyz, n, p.pos_r.xyz, p.normal_level.xyz, p.pos_r.w);
+    let raw = basis_weight(x.xyz, n, v.pos_r.xyz, v.normal_level.xyz, v.pos_r.w);
     if raw <= 0.0 {
         discard;
     }
-    let w = raw * p.factor.x;
-    let b = v.index * 9u;
-    let e = vec3<f32>(
-        dot(n, vec3<f32>(coeffs[b], coeffs[b + 1u], coeffs[b + 2u])),
-        dot(n, vec3<f32>(coeffs[b + 3u], coeffs[b + 4u], coeffs[b + 5u])),
-        dot(n, vec3<f32>(coeffs[b + 6u], coeffs[b + 7u], coeffs[b + 8u])),
-    );
+    let w = raw * v.red.w;
+    let e = vec3<f32>(dot(n, v.red.xyz), dot(n, v.green.xyz), dot(n, v.blue));
     var out: AccOut;
     out.sums = vec4<f32>(w * e, w);
-    out.level = w * p.normal_level.w;
+    out.level = w * v.normal_level.w;
     return out;
 }
