@@ -103,7 +103,7 @@ pub fn flat_indirect_at_pixel_normals(
     image(points, width, |p| {
         let mut acc = [0.0f32; LINK_DIM];
         let mut e = [0.0f32; LINK_DIM];
-        let sum = fb.ib.for_each_weight(0, p.position, p.normal, |q, w| {
+        let sum = fb.for_each_weight(p.position, p.normal, |q, w| {
             let j = fb.source[q] as usize;
             ib.reconstruct(
                 i,

@@ -88,6 +88,79 @@ fn gpu_splatting_equals_the_cpu_reconstruction_at_grazing_angles() {
     });
 }
 
+/// On a curved surface the flat functions covering a pixel face different ways, and the flat
+/// weights' sharper normal factor (`(n . n_i)^p`, not Eq. 8's square) decides how much each
+/// counts. Inside a sphere, with coefficients that vary with each point's normal, the GPU's
+/// image must be the CPU's flat evaluation with the basis' power, and measurably not the one
+/// with Eq. 8's weights (so that the comparison can fail).
+#[test]
+fn gpu_splatting_weighs_flat_functions_with_their_normal_power() {
+    let spec = "builtin:sphere?albedo=0.5&radius=2";
+    let d = temp("normal_power");
+    let f = d.join("sphere.mlt");
+    let opts = BakeOptions {
+        receiver_levels: Some(3),
+        coarse_count: Some(24),
+        sender_levels: Some(2),
+        bounces: Some(1),
+        gather_rays: Some(64),
+        ..Default::default()
+    };
+    bake_to(&f, spec, opts);
+    let r = common::relight_file(&f, spec, |l| l);
+    let fb = &r.flat;
+    assert!(fb.normal_power > 2.0);
+    // Vector irradiance along each point's normal, scaled by a smooth function of it.
+    let coeffs: Vec<f32> = fb
+        .ib
+        .basis
+        .normals
+        .iter()
+        .flat_map(|n| {
+            (0..3).flat_map(move |c| {
+                let s = 1.0 + 0.8 * n[c];
+                [s * n[0], s * n[1], s * n[2]]
+            })
+        })
+        .collect();
+    let camera = small(48, 48)(&Camera::from_info(&r.meta.camera).unwrap());
+    let gpu = gpu();
+    let mut renderer = Renderer::new(&gpu, &GpuMesh::from_scene(&r.scene), fb, 64).unwrap();
+    renderer.set_coefficients(&gpu, &coeffs);
+    renderer
+        .render(&gpu, &fb.ib, &camera, &r.light, false)
+        .unwrap();
+    let buffers = renderer.read_buffers(&gpu).unwrap();
+    let g = renderer.read_gbuffer(&gpu).unwrap();
+    let eq8 = fb.clone().with_normal_power(2.0).unwrap();
+    let (mut checked, mut apart) = (0, 0.0f32);
+    for (k, p) in g.position.iter().enumerate().step_by(3) {
+        assert_eq!(p[3], 1.0, "the camera is inside the sphere");
+        let (x, n) = ([p[0], p[1], p[2]], g.normal[k]);
+        let shade = |basis: &mlt_format::flat_basis::FlatBasis, c: usize| {
+            let mut v = [0.0f32; LINK_DIM];
+            basis.reconstruct(&coeffs, LINK_DIM, x, n, &mut v);
+            let e = n[0] * v[3 * c] + n[1] * v[3 * c + 1] + n[2] * v[3 * c + 2];
+            g.albedo[k][c] / std::f32::consts::PI * e.max(0.0)
+        };
+        for c in 0..3 {
+            let (expected, other) = (shade(fb, c), shade(&eq8, c));
+            let got = buffers.indirect.pixels[k][c];
+            assert!(
+                (got - expected).abs() <= 2e-3 * expected.abs().max(1e-3),
+                "pixel {k} channel {c}: GPU {got} vs CPU {expected} (Eq. 8's weights: {other})"
+            );
+            apart = apart.max((other - expected).abs() / expected.abs().max(1e-3));
+        }
+        checked += 1;
+    }
+    assert!(checked > 500, "only {checked} pixels");
+    assert!(
+        apart > 1e-2,
+        "the normal power changes no pixel by more than {apart}: the test cannot tell"
+    );
+}
+
 #[test]
 fn closed_sphere_renders_uniform_analytic_indirect_and_direct_radiance() {
     let spec = "builtin:sphere?albedo=0.5&radius=2";
@@ -500,7 +573,7 @@ fn gpu_flattening_equals_the_cpu_operator() {
     assert!(!frame.flat.is_empty());
     let gpu = gpu();
     let fb = relighter.flat_basis().clone();
-    let mut renderer = Renderer::new(&gpu, &GpuMesh::from_scene(&scene), &fb.ib.basis, 64).unwrap();
+    let mut renderer = Renderer::new(&gpu, &GpuMesh::from_scene(&scene), &fb, 64).unwrap();
     let op = relighter.flatten_operator().unwrap();
     // The flattening operator and the sharpening step after it, as the relighter does.
     let sharpen = relighter.sharpen_operator();

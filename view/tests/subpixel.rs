@@ -51,8 +51,7 @@ fn box_filtered_direct_light_moves_toward_the_reference_at_edges() {
     let mut camera = Camera::from_info(&r.meta.camera).unwrap();
     (camera.width, camera.height) = (WIDTH, HEIGHT);
     let gpu = gpu();
-    let mut renderer =
-        Renderer::new(&gpu, &GpuMesh::from_scene(&r.scene), &ib.basis, 1024).unwrap();
+    let mut renderer = Renderer::new(&gpu, &GpuMesh::from_scene(&r.scene), &r.flat, 1024).unwrap();
     renderer.set_coefficients(&gpu, &r.frame.flat);
     renderer.render(&gpu, ib, &camera, &light, false).unwrap();
     let centres = renderer.read_buffers(&gpu).unwrap();

@@ -300,6 +300,23 @@ impl<'a> CpuRelighter<'a> {
         self.flatten_op.as_ref()
     }
 
+    /// Gives the flat basis' weights the normal power `power` ([`FlatBasis::with_normal_power`];
+    /// 2: Eq. 8's weights) and builds the sharpening step for them again; the flattening
+    /// operator, which evaluates the hierarchical basis at the flat points, is unchanged. For
+    /// experiments; a power below 2 is an error and changes nothing.
+    pub fn set_flat_normal_power(&mut self, power: f32) -> Result<(), RelightError> {
+        if power == self.flat.normal_power {
+            return Ok(());
+        }
+        let flat = self.flat.clone().with_normal_power(power)?;
+        let sharpen_op = SharpenOp::build(&flat)?;
+        self.load.sharpen_entries = sharpen_op.entries();
+        self.load.sharpen_bytes = sharpen_op.bytes();
+        self.flat = flat;
+        self.sharpen_op = Some(sharpen_op);
+        Ok(())
+    }
+
     /// Tabulates now the basis functions of every sender point whose direct sample is used,
     /// for the support averages near the light (step 1), which frames otherwise tabulate on
     /// first use: the first frames near a surface then cost no more than the others.

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use clap::{Args, ValueEnum};
 use glam::Vec3;
-use mlt_format::flat_basis::FlatRule;
+use mlt_format::flat_basis::{FlatRule, FLAT_NORMAL_POWER};
 use mlt_view::camera::parse_vec3;
 use mlt_view::gpu::Gpu;
 
@@ -115,6 +115,11 @@ pub struct RelightArgs {
     /// building it by the default rule.
     #[arg(long, value_parser = parse_flat_rule)]
     pub flat_rule: Option<FlatRule>,
+    /// For experiments: the exponent `p` of the flat weights' normal factor `(n . n_i)^p`, at
+    /// least 2 (2: Eq. 8's own weights, as before this build), with which the flat basis is
+    /// splatted and sharpened.
+    #[arg(long, value_name = "P", default_value_t = FLAT_NORMAL_POWER)]
+    pub flat_normal_power: f32,
 }
 
 /// [`RelightArgs::feedback_lag`].

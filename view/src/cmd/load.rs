@@ -89,6 +89,9 @@ pub fn with_viewing<T>(args: &BakedArgs, f: impl FnOnce(Viewing<'_>) -> Result<T
         stored,
     )
     .context("building the relighting operators")?;
+    relighter
+        .set_flat_normal_power(relight.flat_normal_power)
+        .context("--flat-normal-power")?;
     relighter.adaptive_shadows = !relight.all_shadow_rays;
     relighter.support_average = !relight.point_samples;
     relighter.sharpen = !relight.no_sharpen;

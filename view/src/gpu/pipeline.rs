@@ -334,3 +334,31 @@ pub fn begin<'e>(
         multiview_mask: None,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::COMMON;
+
+    /// The value of `const NAME: f32 = VALUE;` in `common.wgsl`.
+    fn wgsl_constant(name: &str) -> f32 {
+        let start = format!("const {name}: f32 = ");
+        let line = COMMON
+            .lines()
+            .find_map(|l| l.strip_prefix(&start))
+            .unwrap_or_else(|| panic!("no {name} in common.wgsl"));
+        line.trim_end_matches(';').trim().parse().unwrap()
+    }
+
+    #[test]
+    fn the_shaders_constants_are_the_libraries() {
+        assert_eq!(wgsl_constant("F_SQUASH"), mlt_format::kernel::F_SQUASH);
+        assert_eq!(
+            wgsl_constant("MIN_WEIGHT_SUM"),
+            mlt_format::shepard::MIN_WEIGHT_SUM
+        );
+        assert_eq!(
+            wgsl_constant("FLAT_NORMAL_FLOOR"),
+            mlt_format::flat_basis::FLAT_NORMAL_FLOOR
+        );
+    }
+}

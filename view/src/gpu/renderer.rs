@@ -96,14 +96,15 @@ pub struct Renderer {
 }
 
 impl Renderer {
-    /// Uploads the scene and the basis. `shadow_res` is the shadow maps' resolution.
+    /// Uploads the scene and the flat basis `flat` (its points and its weights' normal
+    /// power). `shadow_res` is the shadow maps' resolution.
     pub fn new(
         gpu: &Gpu,
         mesh: &GpuMesh,
-        basis: &Basis,
+        flat: &FlatBasis,
         shadow_res: u32,
     ) -> Result<Renderer, GpuError> {
-        Self::build(gpu, mesh, basis, None, shadow_res)
+        Self::build(gpu, mesh, flat, None, shadow_res)
     }
 
     /// [`Renderer::new`] for a flat basis `flat`, whose points are shown in the level-used and
@@ -117,16 +118,17 @@ impl Renderer {
         shadow_res: u32,
     ) -> Result<Renderer, GpuError> {
         let levels = flat.source_levels(hier);
-        Self::build(gpu, mesh, &flat.ib.basis, Some(&levels), shadow_res)
+        Self::build(gpu, mesh, flat, Some(&levels), shadow_res)
     }
 
     fn build(
         gpu: &Gpu,
         mesh: &GpuMesh,
-        basis: &Basis,
+        flat: &FlatBasis,
         levels: Option<&[u32]>,
         shadow_res: u32,
     ) -> Result<Renderer, GpuError> {
+        let basis = &flat.ib.basis;
         let device = &gpu.device;
         let acc_format = if gpu.report.float32_blend {
             wgpu::TextureFormat::Rgba32Float
@@ -134,7 +136,7 @@ impl Renderer {
             wgpu::TextureFormat::Rgba16Float
         };
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let scene = SceneBuffers::new(device, mesh, basis, levels);
+        let scene = SceneBuffers::new(device, mesh, basis, levels, flat.normal_power);
         let renderer = Renderer {
             point_count: basis.len(),
             levels: levels.map_or(basis.levels(), |l| {

@@ -16,7 +16,8 @@ use super::uniforms::Globals;
 struct PointGpu {
     pos_r: [f32; 4],
     normal_level: [f32; 4],
-    /// Unused padding (the flat basis has one level: every weight counts alike).
+    /// x: a weight factor (1: the flat basis has one level, every weight counts alike); y:
+    /// the exponent of the flat weights' normal factor (`FlatBasis::normal_power`).
     factor: [f32; 4],
 }
 
@@ -41,12 +42,13 @@ pub struct SceneBuffers {
 impl SceneBuffers {
     /// The buffers of `mesh` and `basis`; each point's level is `levels[j]` when given (a flat
     /// basis' points: the level of the hierarchical point each one is), else its level in
-    /// `basis`.
+    /// `basis`. `normal_power` is the exponent of the flat weights' normal factor.
     pub fn new(
         device: &wgpu::Device,
         mesh: &GpuMesh,
         basis: &Basis,
         levels: Option<&[u32]>,
+        normal_power: f32,
     ) -> SceneBuffers {
         let vertex_bytes: &[u8] = if mesh.vertices.is_empty() {
             &[0u8; std::mem::size_of::<Vertex>()]
@@ -93,14 +95,19 @@ impl SceneBuffers {
             globals,
             globals_layout,
             globals_bg,
-            points: point_buffer(device, basis, levels),
+            points: point_buffer(device, basis, levels, normal_power),
             coefficients,
             visible,
         }
     }
 }
 
-fn point_buffer(device: &wgpu::Device, basis: &Basis, levels: Option<&[u32]>) -> wgpu::Buffer {
+fn point_buffer(
+    device: &wgpu::Device,
+    basis: &Basis,
+    levels: Option<&[u32]>,
+    normal_power: f32,
+) -> wgpu::Buffer {
     let pts: Vec<PointGpu> = (0..basis.len())
         .map(|j| {
             let p = basis.positions[j];
@@ -109,7 +116,7 @@ fn point_buffer(device: &wgpu::Device, basis: &Basis, levels: Option<&[u32]>) ->
             PointGpu {
                 pos_r: [p[0], p[1], p[2], basis.radii[j]],
                 normal_level: [nn[0], nn[1], nn[2], level as f32],
-                factor: [1.0, 0.0, 0.0, 0.0],
+                factor: [1.0, normal_power, 0.0, 0.0],
             }
         })
         .collect();

@@ -92,8 +92,7 @@ pub fn render(
     let r = relight_file(&f, spec, |l| light.unwrap_or(l));
     let camera = camera(&Camera::from_info(&r.meta.camera).unwrap());
     let gpu = gpu();
-    let mut renderer =
-        Renderer::new(&gpu, &GpuMesh::from_scene(&r.scene), &r.flat.ib.basis, 512).unwrap();
+    let mut renderer = Renderer::new(&gpu, &GpuMesh::from_scene(&r.scene), &r.flat, 512).unwrap();
     renderer.set_coefficients(&gpu, &r.frame.flat);
     renderer
         .render(&gpu, &r.flat.ib, &camera, &r.light, true)

@@ -37,12 +37,8 @@ pub struct SharpenScratch {
 impl SharpenOp {
     /// Builds `W` for `flat` (in parallel; the same for any thread count).
     pub fn build(flat: &FlatBasis) -> Result<SharpenOp, RelightError> {
-        let itself = FlatBasis {
-            ib: flat.ib.clone(),
-            source: (0..flat.len() as u32).collect(),
-        };
         Ok(SharpenOp {
-            smoothing: FlattenOp::build(&flat.ib, &itself, None)?,
+            smoothing: FlattenOp::smoothing_of(flat)?,
         })
     }
 

@@ -28,6 +28,8 @@ struct Globals {
 const PI: f32 = 3.14159265358979;
 const F_SQUASH: f32 = 2.0;
 const MIN_WEIGHT_SUM: f32 = 1e-12;
+// mlt_format::flat_basis::FLAT_NORMAL_FLOOR.
+const FLAT_NORMAL_FLOOR: f32 = 1e-3;
 
 // Eq. 9: K(r) = 2r^3 - 3r^2 + 1 on [0, 1].
 fn kernel(r: f32) -> f32 {

@@ -16,7 +16,8 @@ struct Point {
     pos_r: vec4<f32>,
     // xyz: normal; w: level.
     normal_level: vec4<f32>,
-    // x: 1 (a weight factor; the flat basis has one level).
+    // x: 1 (a weight factor; the flat basis has one level); y: the exponent p of the flat
+    // weights' normal factor.
     factor: vec4<f32>,
 };
 
@@ -114,7 +115,7 @@ fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VsOut
     out.pos_r = p.pos_r;
     out.normal_level = p.normal_level;
     out.red = vec4<f32>(coeffs[b], coeffs[b + 1u], coeffs[b + 2u], p.factor.x);
-    out.green = vec4<f32>(coeffs[b + 3u], coeffs[b + 4u], coeffs[b + 5u], 0.0);
+    out.green = vec4<f32>(coeffs[b + 3u], coeffs[b + 4u], coeffs[b + 5u], p.factor.y - 2.0);
     out.blue = vec3<f32>(coeffs[b + 6u], coeffs[b + 7u], coeffs[b + 8u]);
     return out;
 }
@@ -138,7 +139,10 @@ fn fs(v: VsOut) -> AccOut {
     if raw <= 0.0 {
         discard;
     }
-    let w = raw * v.red.w;
+    // The flat weight: Eq. 8's times (n . n_i)^(p - 2) + FLAT_NORMAL_FLOOR (mlt_format's
+    // flat_normal_factor; raw > 0 means n . n_i > 0).
+    let cosine = dot(n, v.normal_level.xyz);
+    let w = raw * v.red.w * (pow(cosine, v.green.w) + FLAT_NORMAL_FLOOR);
     let e = vec3<f32>(dot(n, v.red.xyz), dot(n, v.green.xyz), dot(n, v.blue));
     var out: AccOut;
     out.sums = vec4<f32>(w * e, w);
