@@ -1,10 +1,10 @@
 // The indirect pass (section 4.1): every flat basis function whose support meets the view is
 // drawn as a screen rectangle bounding its support (the squashed sphere of Eq. 10); each
-// covered pixel evaluates the weight of Eq. 8 at its G-buffer position and normal and
-// accumulates, with additive blending, the weight and the weighted irradiance `w (n . c)` per
-// colour: the pixel's normal `n` is the same for every function there, so
-// `sum w (n . c) = n . sum w c`, and dotting here blends 5 floats per fragment instead of the
-// 10 of the vector sums. The resolve pass divides.
+// covered pixel evaluates the flat weight (Eq. 8's with the flat basis' sharper normal factor,
+// `mlt_format::flat_basis`) at its G-buffer position and normal and accumulates, with additive
+// blending, the weight and the weighted irradiance `w (n . c)` per colour: the pixel's normal
+// `n` is the same for every function there, so `sum w (n . c) = n . sum w c`, and dotting here
+// blends 5 floats per fragment instead of the 10 of the vector sums. The resolve pass divides.
 //
 // The vertex shader reads the function's point and coefficients and hands them to its
 // fragments as flat varyings, so that the fragment shader reads only the G-buffer: a software
