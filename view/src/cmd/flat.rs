@@ -40,6 +40,7 @@ pub fn run(args: &FlatArgs) -> Result<()> {
             json["darker"] = serde_json::json!(check.darker.len());
             json["file"] = serde_json::json!(v.path.display().to_string());
             json["flat_stored"] = serde_json::json!(v.relighter.load_stats().flat_stored);
+            json["flat_normal_power"] = serde_json::json!(fb.normal_power);
             json["sharpened"] = serde_json::json!(v.relighter.sharpen);
             println!("{}", serde_json::to_string_pretty(&json)?);
         } else {
