@@ -118,7 +118,8 @@ pub struct RelightArgs {
     /// For experiments: the exponent `p` of the flat weights' normal factor `(n . n_i)^p`, at
     /// least 2 (2: Eq. 8's own weights, as before this build), with which the flat basis is
     /// splatted and sharpened.
-    #[arg(long, value_name = "P", default_value_t = FLAT_NORMAL_POWER)]
+    #[arg(long, value_name = "P", default_value_t = FLAT_NORMAL_POWER,
+          value_parser = parse_normal_power)]
     pub flat_normal_power: f32,
 }
 
@@ -142,6 +143,17 @@ impl FeedbackLag {
             FeedbackLag::Off => false,
         }
     }
+}
+
+/// A finite power of at least 2 for [`RelightArgs::flat_normal_power`].
+fn parse_normal_power(s: &str) -> Result<f32, String> {
+    let p: f32 = s.trim().parse().map_err(|e| format!("{s}: {e}"))?;
+    if !(p.is_finite() && p >= 2.0) {
+        return Err(format!(
+            "the power must be a finite number of at least 2, got {s}"
+        ));
+    }
+    Ok(p)
 }
 
 /// `K,F[,H,R[,C]]` for [`RelightArgs::flat_rule`].
@@ -229,4 +241,40 @@ pub struct ProbeArgs {
     /// Where to write the probes' irradiance.
     #[arg(long)]
     pub probe_out: PathBuf,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn normal_powers_are_finite_and_at_least_two() {
+        assert_eq!(parse_normal_power("12"), Ok(12.0));
+        assert_eq!(parse_normal_power(" 2 "), Ok(2.0));
+        for bad in ["1.5", "-3", "inf", "NaN", "twelve", ""] {
+            assert!(parse_normal_power(bad).is_err(), "{bad} accepted");
+        }
+    }
+
+    #[test]
+    fn flat_rules_take_two_four_or_five_values() {
+        let rule = parse_flat_rule("4,1.35").unwrap();
+        assert_eq!((rule.neighbours, rule.radius_factor), (4, 1.35));
+        assert_eq!(rule.finer_cover, FlatRule::current().finer_cover);
+        let rule = parse_flat_rule("6, 1.2, 0.1, 0.5, 0").unwrap();
+        assert_eq!(
+            (rule.hole_weight, rule.hole_reach, rule.finer_cover),
+            (0.1, 0.5, 0.0)
+        );
+        for bad in [
+            "4",
+            "0,1.35",
+            "4,-1",
+            "4,1.35,0.05",
+            "4,1.35,0.05,1.5",
+            "4,1.35,0.05,0.7,-1",
+        ] {
+            assert!(parse_flat_rule(bad).is_err(), "{bad} accepted");
+        }
+    }
 }
