@@ -2,7 +2,7 @@
 //! normalised per level (Eq. 2) and quantised to 16 bits keeping their sum, then the rows in
 //! storage order, in blocks sharing a table of local columns.
 
-use mlt_format::flat_basis::{flat_normal_factor, FlatBasis};
+use mlt_format::flat_basis::FlatBasis;
 use mlt_format::morton::morton_order;
 use mlt_format::shepard::{IndexedBasis, MIN_WEIGHT_SUM};
 use rayon::prelude::*;
@@ -99,35 +99,29 @@ impl FlattenOp {
         keep: Option<&[bool]>,
         options: FlattenOptions,
     ) -> Result<FlattenOp, RelightError> {
-        FlattenOp::build_weighted(ib, flat, keep, options, None)
+        FlattenOp::build_weighted(ib, flat, keep, options, false)
     }
 
     /// The flat basis `flat`'s own weights at its points, normalised (rows and columns: flat
     /// points), with its weights ([`FlatBasis::for_each_weight`]: Eq. 8 times the sharper
-    /// normal factor) instead of Eq. 8's; nothing dropped but what rounds to zero.
+    /// normal factor) instead of Eq. 8's; values below the default threshold dropped.
     pub(super) fn smoothing_of(flat: &FlatBasis) -> Result<FlattenOp, RelightError> {
         let itself = FlatBasis {
             ib: flat.ib.clone(),
             source: (0..flat.len() as u32).collect(),
             normal_power: flat.normal_power,
         };
-        FlattenOp::build_weighted(
-            &flat.ib,
-            &itself,
-            None,
-            FlattenOptions::default(),
-            Some(flat.normal_power),
-        )
+        FlattenOp::build_weighted(&flat.ib, &itself, None, FlattenOptions::default(), true)
     }
 
-    /// [`FlattenOp::build_with`], with each weight times [`flat_normal_factor`] of the power
-    /// `normal_power` where one is given (`ib` then a flat basis' one level).
+    /// [`FlattenOp::build_with`]; with `flat_weights`, the rows hold `flat`'s own weights
+    /// ([`FlatBasis::for_each_weight`]) instead of Eq. 8's (`ib` is then `flat`'s one level).
     fn build_weighted(
         ib: &IndexedBasis,
         flat: &FlatBasis,
         keep: Option<&[bool]>,
         options: FlattenOptions,
-        normal_power: Option<f32>,
+        flat_weights: bool,
     ) -> Result<FlattenOp, RelightError> {
         let b = &ib.basis;
         let n = b.len();
@@ -145,7 +139,7 @@ impl FlattenOp {
                 )));
             }
         }
-        let blocks = quantised_rows(ib, flat, keep, options.drop_below.max(0.0), normal_power);
+        let blocks = quantised_rows(ib, flat, keep, options.drop_below.max(0.0), flat_weights);
         let total: usize = blocks.iter().map(|rows| rows.ks.len()).sum();
         if total >= u32::MAX as usize {
             return Err(RelightError::FlattenOperator(format!(
@@ -190,14 +184,14 @@ impl FlattenOp {
 /// Every flat point's row (Eq. 6: the normalised weights `B^l_k(p_j)` of each level with
 /// support at `p_j`, Eq. 2), quantised per level, in blocks of [`BUILD_BLOCK`] points computed
 /// in parallel. Only the columns `k` with `keep[k]` (all without `keep`) are stored. With
-/// `normal_power`, every weight is multiplied by [`flat_normal_factor`] of that power (the
-/// flat basis' weights).
+/// `flat_weights`, the weights are `flat`'s own ([`FlatBasis::for_each_weight`]; `ib` is then
+/// its one level).
 fn quantised_rows(
     ib: &IndexedBasis,
     flat: &FlatBasis,
     keep: Option<&[bool]>,
     drop_below: f64,
-    normal_power: Option<f32>,
+    flat_weights: bool,
 ) -> Vec<Rows> {
     let b = &ib.basis;
     let n = flat.len();
@@ -217,16 +211,12 @@ fn quantised_rows(
                 let before = rows.ks.len();
                 for l in 0..levels {
                     level.clear();
-                    let mut sum = ib.for_each_weight(l, x, nj, |k, w| level.push((k as u32, w)));
-                    if let Some(power) = normal_power {
-                        sum = 0.0;
-                        for (k, w) in level.iter_mut() {
-                            let m = b.normals[*k as usize];
-                            let c = nj[0] * m[0] + nj[1] * m[1] + nj[2] * m[2];
-                            *w *= flat_normal_factor(c, power);
-                            sum += *w;
-                        }
-                    }
+                    let push = |k: usize, w: f32| level.push((k as u32, w));
+                    let sum = if flat_weights {
+                        flat.for_each_weight(x, nj, push)
+                    } else {
+                        ib.for_each_weight(l, x, nj, push)
+                    };
                     if sum <= MIN_WEIGHT_SUM {
                         continue;
                     }
