@@ -16,9 +16,9 @@ use super::uniforms::Globals;
 struct PointGpu {
     pos_r: [f32; 4],
     normal_level: [f32; 4],
-    /// x: a weight factor (1: the flat basis has one level, every weight counts alike); y:
-    /// the exponent of the flat weights' normal factor (`FlatBasis::normal_power`).
-    factor: [f32; 4],
+    /// x: the exponent of the flat weights' normal factor (`FlatBasis::normal_power`); yzw:
+    /// unused padding.
+    weight_params: [f32; 4],
 }
 
 /// The scene and the basis on the GPU.
@@ -116,7 +116,7 @@ fn point_buffer(
             PointGpu {
                 pos_r: [p[0], p[1], p[2], basis.radii[j]],
                 normal_level: [nn[0], nn[1], nn[2], level as f32],
-                factor: [1.0, normal_power, 0.0, 0.0],
+                weight_params: [normal_power, 0.0, 0.0, 0.0],
             }
         })
         .collect();

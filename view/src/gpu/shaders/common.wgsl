@@ -42,8 +42,17 @@ fn kernel(r: f32) -> f32 {
     return (2.0 * r - 3.0) * r * r + 1.0;
 }
 
-// Eq. 8 with the squashed distance of Eq. 10, as format/src/kernel.rs `weight`.
-fn basis_weight(x: vec3<f32>, n: vec3<f32>, xj: vec3<f32>, nj: vec3<f32>, rj: f32) -> f32 {
+// A flat function's weight, as mlt_format's `FlatBasis::for_each_weight`: Eq. 8 with the
+// squashed distance of Eq. 10 (format/src/kernel.rs `weight`) times the flat basis' sharper
+// normal factor `c^(power - 2) + FLAT_NORMAL_FLOOR`, with `c = n . nj` (`flat_normal_factor`).
+fn flat_weight(
+    x: vec3<f32>,
+    n: vec3<f32>,
+    xj: vec3<f32>,
+    nj: vec3<f32>,
+    rj: f32,
+    power: f32,
+) -> f32 {
     let c = dot(n, nj);
     if c <= 0.0 || rj <= 0.0 {
         return 0.0;
@@ -55,7 +64,7 @@ fn basis_weight(x: vec3<f32>, n: vec3<f32>, xj: vec3<f32>, nj: vec3<f32>, rj: f3
     if d2 >= r2 {
         return 0.0;
     }
-    return kernel(sqrt(d2 / r2)) * c * c;
+    return kernel(sqrt(d2 / r2)) * c * c * (pow(c, power - 2.0) + FLAT_NORMAL_FLOOR);
 }
 
 // Unshadowed direct irradiance of the light at (x, n), as view/src/light.rs.

@@ -6,7 +6,7 @@
 struct Point {
     pos_r: vec4<f32>,
     normal_level: vec4<f32>,
-    factor: vec4<f32>,
+    weight_params: vec4<f32>,
 };
 
 struct PointsParams {

@@ -16,9 +16,8 @@ struct Point {
     pos_r: vec4<f32>,
     // xyz: normal; w: level.
     normal_level: vec4<f32>,
-    // x: 1 (a weight factor; the flat basis has one level); y: the exponent p of the flat
-    // weights' normal factor.
-    factor: vec4<f32>,
+    // x: the exponent p of the flat weights' normal factor; yzw: unused.
+    weight_params: vec4<f32>,
 };
 
 @group(0) @binding(0) var<uniform> g: Globals;
@@ -31,11 +30,11 @@ struct Point {
 struct VsOut {
     @builtin(position) clip: vec4<f32>,
     // The function's centre and support radius; normal and level; its vector irradiance per
-    // colour (`red.w`: the weight factor).
+    // colour (`red.w`: the exponent of the normal factor).
     @location(0) @interpolate(flat) pos_r: vec4<f32>,
     @location(1) @interpolate(flat) normal_level: vec4<f32>,
     @location(2) @interpolate(flat) red: vec4<f32>,
-    @location(3) @interpolate(flat) green: vec4<f32>,
+    @location(3) @interpolate(flat) green: vec3<f32>,
     @location(4) @interpolate(flat) blue: vec3<f32>,
 };
 
@@ -114,8 +113,8 @@ fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VsOut
     let b = j * 9u;
     out.pos_r = p.pos_r;
     out.normal_level = p.normal_level;
-    out.red = vec4<f32>(coeffs[b], coeffs[b + 1u], coeffs[b + 2u], p.factor.x);
-    out.green = vec4<f32>(coeffs[b + 3u], coeffs[b + 4u], coeffs[b + 5u], p.factor.y - 2.0);
+    out.red = vec4<f32>(coeffs[b], coeffs[b + 1u], coeffs[b + 2u], p.weight_params.x);
+    out.green = vec3<f32>(coeffs[b + 3u], coeffs[b + 4u], coeffs[b + 5u]);
     out.blue = vec3<f32>(coeffs[b + 6u], coeffs[b + 7u], coeffs[b + 8u]);
     return out;
 }
@@ -135,15 +134,11 @@ fn fs(v: VsOut) -> AccOut {
         discard;
     }
     let n = textureLoad(gbuf_normal, px, 0).xyz;
-    let raw = basis_weight(x.xyz, n, v.pos_r.xyz, v.normal_level.xyz, v.pos_r.w);
-    if raw <= 0.0 {
+    let w = flat_weight(x.xyz, n, v.pos_r.xyz, v.normal_level.xyz, v.pos_r.w, v.red.w);
+    if w <= 0.0 {
         discard;
     }
-    // The flat weight: Eq. 8's times (n . n_i)^(p - 2) + FLAT_NORMAL_FLOOR (mlt_format's
-    // flat_normal_factor; raw > 0 means n . n_i > 0).
-    let cosine = dot(n, v.normal_level.xyz);
-    let w = raw * v.red.w * (pow(cosine, v.green.w) + FLAT_NORMAL_FLOOR);
-    let e = vec3<f32>(dot(n, v.red.xyz), dot(n, v.green.xyz), dot(n, v.blue));
+    let e = vec3<f32>(dot(n, v.red.xyz), dot(n, v.green), dot(n, v.blue));
     var out: AccOut;
     out.sums = vec4<f32>(w * e, w);
     out.level = w * v.normal_level.w;
