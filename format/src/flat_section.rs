@@ -172,6 +172,7 @@ pub struct FlatSection1_5 {
     pub tree: RTree,
 }
 
+#[cfg(any(test, feature = "test-support"))]
 impl FlatSection1_5 {
     /// `section` as format 1.5 stored it (its rule less `finer_cover`); for tests of readers.
     pub fn from_current(section: &FlatSection) -> FlatSection1_5 {
