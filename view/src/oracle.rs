@@ -10,13 +10,18 @@
 //! plus the noise of the samples); the gap between it and the bake's image is the
 //! transport's (links of T dropped at epsilon, bounces 2+ on coarse receivers only, gather
 //! hits without sender support, the series truncated after the last bounce).
+//!
+//! [`OracleRelighter::with_levels`] takes the oracle's coefficients on some levels only and
+//! the bake's on the others ([`mix_levels`]): the error of such a mix against the reference,
+//! against the bake's own, says how much of the transport's share lies on those levels.
 
+use std::ops::Range;
 use std::time::Instant;
 
 use mlt_format::flat_basis::FlatBasis;
 use mlt_format::links::LINK_DIM;
 use mlt_format::pull_push::{project, ProjectionReport};
-use mlt_format::IndexedBasis;
+use mlt_format::{Basis, IndexedBasis};
 use mlt_relight::flatten_op::{FlattenOp, FlattenScratch, SharpenOp, SharpenScratch};
 use mlt_relight::{Frame, Light, Relight};
 use mlt_scenes::RayCaster;
@@ -85,13 +90,37 @@ pub fn oracle(
     })
 }
 
+/// `out` = the bake's receiver coefficients `bake` with those of the points of `levels`
+/// replaced by the oracle's `oracle` (`LINK_DIM` floats per point of `basis`, both). An empty
+/// range gives the bake's, `0..levels` the oracle's. Eq. 7's coefficients of a level are
+/// differences from the coarser levels' expansion, so a mix is the bake's expansion with the
+/// oracle's detail on those levels.
+pub fn mix_levels(
+    basis: &Basis,
+    bake: &[f32],
+    oracle: &[f32],
+    levels: Range<usize>,
+    out: &mut Vec<f32>,
+) {
+    out.clear();
+    out.extend_from_slice(bake);
+    for l in levels.start..levels.end.min(basis.levels()) {
+        let r = basis.level_range(l);
+        let span = r.start * LINK_DIM..r.end * LINK_DIM;
+        out[span.clone()].copy_from_slice(&oracle[span]);
+    }
+}
+
 /// A [`Relight`] whose frames are another relighter's (direct light, `e`) with the receiver
-/// coefficients replaced by the oracle's and flattened on the CPU by the viewer's sparse
+/// coefficients replaced by the oracle's (on every level, or on the levels of
+/// [`OracleRelighter::with_levels`]) and flattened on the CPU by the viewer's sparse
 /// operator over every point (the bake's relighter keeps only points with links), then
 /// sharpened as the bake's relighter does.
 pub struct OracleRelighter<'a> {
     inner: &'a mut dyn Relight,
+    basis: Basis,
     alpha: Vec<f32>,
+    levels: Option<Range<usize>>,
     flat: FlatBasis,
     op: FlattenOp,
     scratch: FlattenScratch,
@@ -113,7 +142,9 @@ impl<'a> OracleRelighter<'a> {
         let sharpen = SharpenOp::build(&flat)?;
         Ok(OracleRelighter {
             inner,
+            basis: ib.basis.clone(),
             alpha,
+            levels: None,
             flat,
             op,
             scratch: FlattenScratch::default(),
@@ -124,6 +155,15 @@ impl<'a> OracleRelighter<'a> {
     }
 }
 
+impl OracleRelighter<'_> {
+    /// The oracle's coefficients on the points of `levels` only, the inner relighter's (the
+    /// bake's) on the others ([`mix_levels`]).
+    pub fn with_levels(mut self, levels: Range<usize>) -> Self {
+        self.levels = Some(levels);
+        self
+    }
+}
+
 impl Relight for OracleRelighter<'_> {
     fn flat_basis(&self) -> &FlatBasis {
         &self.flat
@@ -131,14 +171,68 @@ impl Relight for OracleRelighter<'_> {
 
     fn relight(&mut self, light: &Light) -> &Frame {
         let mut frame = self.inner.relight(light).clone();
-        frame.i.clone_from(&self.alpha);
+        match &self.levels {
+            Some(levels) => {
+                let bake = std::mem::take(&mut frame.i);
+                mix_levels(
+                    &self.basis,
+                    &bake,
+                    &self.alpha,
+                    levels.clone(),
+                    &mut frame.i,
+                );
+            }
+            None => frame.i.clone_from(&self.alpha),
+        }
         frame.reused = false;
         frame.flat.resize(self.op.points() * LINK_DIM, 0.0);
         self.op
-            .apply(&self.alpha, LINK_DIM, &mut frame.flat, &mut self.scratch);
+            .apply(&frame.i, LINK_DIM, &mut frame.flat, &mut self.scratch);
         self.sharpen
             .apply(&mut frame.flat, LINK_DIM, &mut self.sharpen_scratch);
         self.frame = frame;
         &self.frame
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Three levels of 2, 3 and 4 points (positions and normals do not matter to the mix).
+    fn basis() -> Basis {
+        let n = 9;
+        Basis {
+            positions: vec![[0.0; 3]; n],
+            normals: vec![[0.0, 0.0, 1.0]; n],
+            radii: vec![1.0; n],
+            level_offsets: vec![0, 2, 5, 9],
+            disk_radii: vec![1.0, 0.5, 0.25],
+        }
+    }
+
+    fn values(n: usize, v: f32) -> Vec<f32> {
+        (0..n * LINK_DIM).map(|k| v + k as f32).collect()
+    }
+
+    #[test]
+    fn mix_takes_the_oracle_on_the_named_levels_only() {
+        let b = basis();
+        let (bake, oracle) = (values(9, 0.0), values(9, 1000.0));
+        let mut out = Vec::new();
+        mix_levels(&b, &bake, &oracle, 1..2, &mut out);
+        for j in 0..9 {
+            let from = if (2..5).contains(&j) { &oracle } else { &bake };
+            let span = j * LINK_DIM..(j + 1) * LINK_DIM;
+            assert_eq!(out[span.clone()], from[span], "point {j}");
+        }
+        mix_levels(&b, &bake, &oracle, 0..0, &mut out);
+        assert_eq!(out, bake);
+        // A range past the last level is clipped to the levels there are.
+        mix_levels(&b, &bake, &oracle, 0..7, &mut out);
+        assert_eq!(out, oracle);
+        mix_levels(&b, &bake, &oracle, 2..3, &mut out);
+        assert_eq!(out[..5 * LINK_DIM], bake[..5 * LINK_DIM]);
+        assert_eq!(out[5 * LINK_DIM..], oracle[5 * LINK_DIM..]);
     }
 }

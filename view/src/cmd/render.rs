@@ -5,6 +5,7 @@
 //! path-traced reference (box-filtered over the pixel as well); `--oracle SPP` adds the basis
 //! floor (`mlt_view::oracle`) into DIR/oracle.
 
+use std::ops::Range;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -53,6 +54,24 @@ pub struct RenderArgs {
     /// the bake's flattening and splatting (compare with: view compare DIR DIR/oracle).
     #[arg(long)]
     pub oracle: Option<u32>,
+    /// With --oracle: take the oracle's coefficients on levels A..B only (A up to but not
+    /// including B, e.g. 0..1 for level 0) and the bake's on the others, to see which levels
+    /// hold the transport's error.
+    #[arg(long, value_name = "A..B", requires = "oracle", value_parser = parse_levels)]
+    pub oracle_levels: Option<Range<usize>>,
+}
+
+/// `A..B` with `A < B` for [`RenderArgs::oracle_levels`].
+fn parse_levels(s: &str) -> Result<Range<usize>, String> {
+    let (a, b) = s
+        .split_once("..")
+        .ok_or_else(|| format!("expected A..B (e.g. 0..1), got {s}"))?;
+    let a: usize = a.trim().parse().map_err(|e| format!("{a}: {e}"))?;
+    let b: usize = b.trim().parse().map_err(|e| format!("{b}: {e}"))?;
+    if a >= b {
+        return Err(format!("the range {s} holds no level (A must be below B)"));
+    }
+    Ok(a..b)
 }
 
 pub fn run(args: &RenderArgs) -> Result<()> {
@@ -106,12 +125,28 @@ fn images(args: &RenderArgs, v: &mut Viewing<'_>) -> Result<Timings> {
 
 /// Renders the basis floor into DIR/oracle (images as [`images`], and oracle.json).
 fn oracle_images(args: &RenderArgs, v: &mut Viewing<'_>, spp: u32) -> Result<()> {
+    if let Some(levels) = args
+        .oracle_levels
+        .as_ref()
+        .filter(|l| l.start >= v.ib.levels())
+    {
+        anyhow::bail!(
+            "--oracle-levels {}..{}: {} has levels 0..{}",
+            levels.start,
+            levels.end,
+            v.path.display(),
+            v.ib.levels()
+        );
+    }
     let opts = ReferenceOptions::new(spp, args.reference_seed ^ 0x6f72_6163_6c65);
     let o = oracle(v.ib, v.caster, &v.light, &opts).context("path tracing the basis floor")?;
     let gpu = Gpu::headless().context("starting the GPU for headless rendering")?;
     let mesh = GpuMesh::from_scene(v.scene);
     let mut relighter = OracleRelighter::new(v.ib, &mut v.relighter, o.alpha)
         .context("building the flattening operator over every point")?;
+    if let Some(levels) = &args.oracle_levels {
+        relighter = relighter.with_levels(levels.clone());
+    }
     let fb = relighter.flat_basis();
     let mut renderer = Renderer::for_flat(&gpu, &mesh, fb, &v.ib.basis, args.gpu.shadow_res)
         .context("setting up the renderer")?;
@@ -132,6 +167,7 @@ fn oracle_images(args: &RenderArgs, v: &mut Viewing<'_>, spp: u32) -> Result<()>
         "points": v.ib.basis.len(),
         "relative_noise_per_point": o.relative_noise,
         "unsupported_points": o.projection.unsupported_points,
+        "oracle_levels": args.oracle_levels.as_ref().map(|l| [l.start, l.end]),
         "seconds": o.seconds,
     });
     std::fs::write(
@@ -192,4 +228,18 @@ fn report(args: &RenderArgs, timings: &Timings, load: &LoadStats) {
         load.build_ms,
         (load.flatten_bytes + load.pull_push_bytes + load.links_bytes) as f64 / 1e6
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse_levels;
+
+    #[test]
+    fn levels_parse_as_half_open_ranges() {
+        assert_eq!(parse_levels("0..1"), Ok(0..1));
+        assert_eq!(parse_levels(" 2 .. 6 "), Ok(2..6));
+        for bad in ["1", "1..1", "3..2", "a..2", "0..", "-1..2"] {
+            assert!(parse_levels(bad).is_err(), "{bad} accepted");
+        }
+    }
 }
