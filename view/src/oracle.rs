@@ -21,7 +21,7 @@ use std::time::Instant;
 use mlt_format::flat_basis::FlatBasis;
 use mlt_format::links::LINK_DIM;
 use mlt_format::pull_push::{project, ProjectionReport};
-use mlt_format::{Basis, IndexedBasis};
+use mlt_format::IndexedBasis;
 use mlt_relight::flatten_op::{FlattenOp, FlattenScratch, SharpenOp, SharpenScratch};
 use mlt_relight::{Frame, Light, Relight};
 use mlt_scenes::RayCaster;
@@ -90,24 +90,17 @@ pub fn oracle(
     })
 }
 
-/// `out` = the bake's receiver coefficients `bake` with those of the points of `levels`
-/// replaced by the oracle's `oracle` (`LINK_DIM` floats per point of `basis`, both). An empty
-/// range gives the bake's, `0..levels` the oracle's. Eq. 7's coefficients of a level are
-/// differences from the coarser levels' expansion, so a mix is the bake's expansion with the
-/// oracle's detail on those levels.
-pub fn mix_levels(
-    basis: &Basis,
-    bake: &[f32],
-    oracle: &[f32],
-    levels: Range<usize>,
-    out: &mut Vec<f32>,
-) {
-    out.clear();
-    out.extend_from_slice(bake);
-    for l in levels.start..levels.end.min(basis.levels()) {
-        let r = basis.level_range(l);
-        let span = r.start * LINK_DIM..r.end * LINK_DIM;
-        out[span.clone()].copy_from_slice(&oracle[span]);
+/// Puts the oracle's coefficients `oracle` into `i` (the bake's, `LINK_DIM` floats per point,
+/// both) on the points of `levels`; `level_offsets` are the basis' (`Basis::level_offsets`).
+/// A level's points are contiguous, so this is one copy; levels past the last are ignored. Eq.
+/// 7's coefficients of a level are differences from the coarser levels' expansion, so the mix
+/// is the bake's expansion with the oracle's detail on those levels.
+pub fn mix_levels(level_offsets: &[u32], oracle: &[f32], levels: Range<usize>, i: &mut [f32]) {
+    let last = level_offsets.len().saturating_sub(1);
+    let (a, b) = (levels.start.min(last), levels.end.min(last));
+    if a < b {
+        let span = level_offsets[a] as usize * LINK_DIM..level_offsets[b] as usize * LINK_DIM;
+        i[span.clone()].copy_from_slice(&oracle[span]);
     }
 }
 
@@ -118,9 +111,10 @@ pub fn mix_levels(
 /// sharpened as the bake's relighter does.
 pub struct OracleRelighter<'a> {
     inner: &'a mut dyn Relight,
-    basis: Basis,
+    level_offsets: Vec<u32>,
     alpha: Vec<f32>,
-    levels: Option<Range<usize>>,
+    /// The levels whose coefficients are the oracle's (all unless [`Self::with_levels`]).
+    levels: Range<usize>,
     flat: FlatBasis,
     op: FlattenOp,
     scratch: FlattenScratch,
@@ -142,9 +136,9 @@ impl<'a> OracleRelighter<'a> {
         let sharpen = SharpenOp::build(&flat)?;
         Ok(OracleRelighter {
             inner,
-            basis: ib.basis.clone(),
+            level_offsets: ib.basis.level_offsets.clone(),
             alpha,
-            levels: None,
+            levels: 0..ib.basis.levels(),
             flat,
             op,
             scratch: FlattenScratch::default(),
@@ -159,7 +153,7 @@ impl OracleRelighter<'_> {
     /// The oracle's coefficients on the points of `levels` only, the inner relighter's (the
     /// bake's) on the others ([`mix_levels`]).
     pub fn with_levels(mut self, levels: Range<usize>) -> Self {
-        self.levels = Some(levels);
+        self.levels = levels;
         self
     }
 }
@@ -171,19 +165,13 @@ impl Relight for OracleRelighter<'_> {
 
     fn relight(&mut self, light: &Light) -> &Frame {
         let mut frame = self.inner.relight(light).clone();
-        match &self.levels {
-            Some(levels) => {
-                let bake = std::mem::take(&mut frame.i);
-                mix_levels(
-                    &self.basis,
-                    &bake,
-                    &self.alpha,
-                    levels.clone(),
-                    &mut frame.i,
-                );
-            }
-            None => frame.i.clone_from(&self.alpha),
-        }
+        frame.i.resize(self.alpha.len(), 0.0);
+        mix_levels(
+            &self.level_offsets,
+            &self.alpha,
+            self.levels.clone(),
+            &mut frame.i,
+        );
         frame.reused = false;
         frame.flat.resize(self.op.points() * LINK_DIM, 0.0);
         self.op
@@ -199,17 +187,8 @@ impl Relight for OracleRelighter<'_> {
 mod tests {
     use super::*;
 
-    /// Three levels of 2, 3 and 4 points (positions and normals do not matter to the mix).
-    fn basis() -> Basis {
-        let n = 9;
-        Basis {
-            positions: vec![[0.0; 3]; n],
-            normals: vec![[0.0, 0.0, 1.0]; n],
-            radii: vec![1.0; n],
-            level_offsets: vec![0, 2, 5, 9],
-            disk_radii: vec![1.0, 0.5, 0.25],
-        }
-    }
+    /// Three levels of 2, 3 and 4 points.
+    const LEVEL_OFFSETS: [u32; 4] = [0, 2, 5, 9];
 
     fn values(n: usize, v: f32) -> Vec<f32> {
         (0..n * LINK_DIM).map(|k| v + k as f32).collect()
@@ -217,21 +196,24 @@ mod tests {
 
     #[test]
     fn mix_takes_the_oracle_on_the_named_levels_only() {
-        let b = basis();
         let (bake, oracle) = (values(9, 0.0), values(9, 1000.0));
-        let mut out = Vec::new();
-        mix_levels(&b, &bake, &oracle, 1..2, &mut out);
+        let mix = |levels: Range<usize>| {
+            let mut out = bake.clone();
+            mix_levels(&LEVEL_OFFSETS, &oracle, levels, &mut out);
+            out
+        };
+        let out = mix(1..2);
         for j in 0..9 {
             let from = if (2..5).contains(&j) { &oracle } else { &bake };
             let span = j * LINK_DIM..(j + 1) * LINK_DIM;
             assert_eq!(out[span.clone()], from[span], "point {j}");
         }
-        mix_levels(&b, &bake, &oracle, 0..0, &mut out);
+        let out = mix(0..0);
         assert_eq!(out, bake);
         // A range past the last level is clipped to the levels there are.
-        mix_levels(&b, &bake, &oracle, 0..7, &mut out);
+        let out = mix(0..7);
         assert_eq!(out, oracle);
-        mix_levels(&b, &bake, &oracle, 2..3, &mut out);
+        let out = mix(2..3);
         assert_eq!(out[..5 * LINK_DIM], bake[..5 * LINK_DIM]);
         assert_eq!(out[5 * LINK_DIM..], oracle[5 * LINK_DIM..]);
     }
