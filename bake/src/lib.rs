@@ -21,6 +21,7 @@ pub mod neumann;
 pub mod observer;
 pub mod output_check;
 pub mod params;
+pub mod path_bounces;
 pub mod pipeline;
 pub mod placement;
 pub mod poisson;

@@ -142,6 +142,11 @@ pub struct BakeOptions {
     #[arg(long)]
     #[serde(default)]
     pub bounces_on_all_receivers: bool,
+    /// Trace the coarsest receivers' bounces 2 and later as N paths each, reflected off the
+    /// true geometry (16384 is a good start), instead of chaining them through the coarsest
+    /// senders as the paper does (0, the default). Not with --bounces-on-all-receivers.
+    #[arg(long, value_name = "N")]
+    pub level0_paths: Option<u32>,
     /// Place the basis only; compute no transport operator.
     #[arg(long)]
     #[serde(default)]
@@ -196,6 +201,7 @@ impl BakeOptions {
             gather_rays: self.gather_rays.or(lower.gather_rays),
             bounces_on_all_receivers: self.bounces_on_all_receivers
                 || lower.bounces_on_all_receivers,
+            level0_paths: self.level0_paths.or(lower.level0_paths),
             basis_only: self.basis_only || lower.basis_only,
             max_misses: self.max_misses.or(lower.max_misses),
             shard: self.shard.or(lower.shard),
@@ -377,9 +383,21 @@ pub fn bounce_policy(opts: &BakeOptions) -> Result<BouncePolicy, BakeError> {
             "the bounce tolerance must be a fraction in (0, 1), got {tolerance}"
         )));
     }
+    let level0_paths = match (opts.level0_paths, opts.bounces_on_all_receivers) {
+        (Some(n), true) if n > 0 => {
+            return Err(BakeError::InvalidParameter(format!(
+                "--level0-paths {n} traces the coarsest receivers' bounces, which \
+                 --bounces-on-all-receivers chains through every receiver instead; give one"
+            )))
+        }
+        (_, true) => 0,
+        (Some(n), false) => n,
+        (None, false) => 0,
+    };
     Ok(BouncePolicy {
         auto: opts.resolved_bounces().auto,
         tolerance,
+        level0_paths,
     })
 }
 

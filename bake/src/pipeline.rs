@@ -23,7 +23,9 @@ use crate::placement::{find_coarse_radius, level_line, place, Coarse, LevelPlan}
 use crate::poisson::DartSettings;
 use crate::rng::mix64;
 use crate::shard::{needed, owners, shard_section};
-use crate::transport::{check_params, compute_transport, refine_t, trim_levels, BouncePolicy};
+use crate::transport::{
+    check_params, compute_transport, refine_t, trace_level0_bounces, trim_levels, BouncePolicy,
+};
 
 /// The tool name and version recorded in files.
 pub fn tool_version() -> String {
@@ -83,8 +85,11 @@ fn key_of(
     policy: &BouncePolicy,
 ) -> u64 {
     let transport = (!opts.basis_only).then_some(transport);
-    let policy =
-        (!opts.basis_only).then_some([if policy.auto { 1.0 } else { 0.0 }, policy.tolerance]);
+    let policy = (!opts.basis_only).then_some([
+        if policy.auto { 1.0 } else { 0.0 },
+        policy.tolerance,
+        policy.level0_paths as f64,
+    ]);
     let description = serde_json::json!({
         "tool": tool_version(),
         "format": [mlt_format::container::VERSION_MAJOR, mlt_format::container::VERSION_MINOR],
@@ -271,7 +276,17 @@ fn transport_stage(
     if let (false, Some((index, count))) = (opts.basis_only, opts.shard) {
         let owner = owners(&ib, count);
         let need = needed(&ib, &owner, index);
-        let (t, _, _) = refine_t(&ib, caster, &transport_params, light, Some(&need), obs)?;
+        let (mut t, _, _) = refine_t(&ib, caster, &transport_params, light, Some(&need), obs)?;
+        let mine = |r: usize| owner[r] == index;
+        trace_level0_bounces(
+            &ib,
+            caster,
+            &transport_params,
+            policy,
+            Some(&mine),
+            &mut t,
+            obs,
+        );
         shard = Some(shard_section(
             &ib,
             &t,

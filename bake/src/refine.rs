@@ -131,6 +131,9 @@ pub struct ReceiverLinks {
     pub gathered: Vec<[f32; LINK_DIM]>,
     /// The representative emission the rows were weighted by (3 floats per sender).
     pub emission: Vec<f32>,
+    /// Bounces 2 and later of the level-0 receivers traced as paths (`path_bounces`), row `i`
+    /// for receiver `i`; empty when the series computes them.
+    pub bounce0: crate::neumann::Rows,
 }
 
 pub const NONE: u32 = u32::MAX;

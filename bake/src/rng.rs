@@ -19,6 +19,7 @@ pub enum Stream {
     Hmd = 3,
     Gather = 4,
     Surface = 5,
+    Paths = 6,
 }
 
 /// SplitMix64 generator.

@@ -20,7 +20,7 @@ use crate::error::BakeError;
 use crate::observer::Observer;
 use crate::pipeline::flat_section;
 use crate::refine::{ReceiverLinks, RefineStats};
-use crate::transport::{finish_transport, trim_levels, BouncePolicy};
+use crate::transport::{finish_transport, traced_vertex, trim_levels, BouncePolicy};
 
 /// Spreads the bits of a 10-bit integer three apart.
 fn spread(mut x: u32) -> u32 {
@@ -116,8 +116,23 @@ pub fn shard_section(
         emission: t.emission.clone(),
         receivers_refined: vec![0; levels],
         t_links_per_level: vec![0; levels],
+        level0_paths: policy.level0_paths,
+        bounce_offsets: vec![0],
         ..Default::default()
     };
+    // The path-traced bounces of the level-0 receivers this shard owns (`bounce0` holds a row
+    // for every level-0 receiver, empty for the ones traced by other shards).
+    for (r, row) in t.bounce0.iter().enumerate() {
+        if owner[r] != index {
+            continue;
+        }
+        s.bounce_rows.push(r as u32);
+        for (j, v) in row {
+            s.bounce_senders.push(*j);
+            s.bounce_values.extend_from_slice(v);
+        }
+        s.bounce_offsets.push(s.bounce_senders.len() as u32);
+    }
     let mut owned: Vec<(u32, usize)> = t
         .rows
         .iter()
@@ -168,7 +183,8 @@ pub fn merge(shards: Vec<BakeContents>, obs: &dyn Observer) -> Result<BakeConten
         if s.count as usize != count
             || s.base_key != s0.base_key
             || s.params != s0.params
-            || (s.auto_bounces, s.bounce_tolerance) != (s0.auto_bounces, s0.bounce_tolerance)
+            || (s.auto_bounces, s.bounce_tolerance, s.level0_paths)
+                != (s0.auto_bounces, s0.bounce_tolerance, s0.level0_paths)
         {
             return bad(format!(
                 "shard {}/{} belongs to another bake (input key {:016x}, expected {:016x})",
@@ -225,18 +241,45 @@ pub fn merge(shards: Vec<BakeContents>, obs: &dyn Observer) -> Result<BakeConten
         gathered.copy_from_slice(&s.row_gathered[LINK_DIM * row..LINK_DIM * (row + 1)]);
         t.push_row(r, &links, 0, gathered);
     }
-    let out = finish_transport(
-        ib,
-        t,
-        rstats,
-        s0.params.clone(),
-        BouncePolicy {
-            auto: s0.auto_bounces,
-            tolerance: s0.bounce_tolerance,
-        },
-        0.0,
-        obs,
-    )?;
+    let policy = BouncePolicy {
+        auto: s0.auto_bounces,
+        tolerance: s0.bounce_tolerance,
+        level0_paths: s0.level0_paths,
+    };
+    if traced_vertex(&s0.params, policy) > 0 {
+        let n0 = ib.basis.level_range(0).len();
+        t.bounce0 = vec![Vec::new(); n0];
+        let mut filled = vec![false; n0];
+        for c in &shards {
+            let Some(s) = &c.shard else { continue };
+            for (k, &r) in s.bounce_rows.iter().enumerate() {
+                let r = r as usize;
+                if r >= n0 || std::mem::replace(&mut filled[r], true) {
+                    return bad(format!(
+                        "shard {}/{} holds path-traced bounces of receiver {r}, which is not a level-0 receiver of its own",
+                        s.index, s.count
+                    ));
+                }
+                let (a, e) = (
+                    s.bounce_offsets[k] as usize,
+                    s.bounce_offsets[k + 1] as usize,
+                );
+                t.bounce0[r] = (a..e)
+                    .map(|j| {
+                        let mut v = [0.0f32; LINK_DIM];
+                        v.copy_from_slice(&s.bounce_values[j * LINK_DIM..(j + 1) * LINK_DIM]);
+                        (s.bounce_senders[j], v)
+                    })
+                    .collect();
+            }
+        }
+        if let Some(r) = filled.iter().position(|f| !f) {
+            return bad(format!(
+                "no shard holds the path-traced bounces of level-0 receiver {r}"
+            ));
+        }
+    }
+    let out = finish_transport(ib, t, rstats, s0.params.clone(), policy, 0.0, obs)?;
     for w in &out.warnings {
         obs.warn(w);
     }

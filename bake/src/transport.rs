@@ -18,6 +18,7 @@ use crate::drop_estimate::{estimate, representative_emission};
 use crate::error::BakeError;
 use crate::neumann::{series, spectral_radius, BounceReceivers, Row, Rows, SeriesReport};
 use crate::observer::Observer;
+use crate::path_bounces::{level0_bounces, PathSettings, MAX_VERTEX};
 use crate::refine::{refine, ReceiverLinks, RefineSettings, RefineStats};
 
 /// The result, with what the user should be told.
@@ -45,6 +46,10 @@ pub struct BouncePolicy {
     /// Largest fraction of the indirect light the series may leave out (`auto`'s target, and
     /// the threshold above which a fixed count is warned about).
     pub tolerance: f64,
+    /// Paths per level-0 receiver that trace its bounces 2 and later (`path_bounces`); 0 chains
+    /// them through the level-0 senders as the paper does (`neumann`). Ignored with
+    /// `bounces_on_all_receivers`, which chains every receiver's.
+    pub level0_paths: u32,
 }
 
 /// The default tolerance of [`BouncePolicy`]: 1 % of the indirect light.
@@ -55,6 +60,7 @@ impl Default for BouncePolicy {
         BouncePolicy {
             auto: false,
             tolerance: DEFAULT_BOUNCE_TOLERANCE,
+            level0_paths: 0,
         }
     }
 }
@@ -86,25 +92,40 @@ pub fn bounces_needed(rho: f64, tolerance: f64) -> Option<u64> {
 /// of the total (bounce `b` carries `rho^(b-1)` of the first, section 3.2).
 /// `quantisation` is the largest absolute f16 error and `max_link` the largest link norm
 /// of S.
+///
+/// `traced` is the deepest vertex of the level-0 receivers' paths when they trace bounces 2 and
+/// later (`path_bounces`; 0 when the series chains them): those keep every link, so nothing is
+/// truncated, and their tail starts after that vertex instead of after the series' last bounce.
 pub fn error_estimate(
     report: &SeriesReport,
     rho: f64,
     tolerance: f64,
     quantisation: f32,
     max_link: f64,
+    traced: u32,
 ) -> ErrorEstimate {
     let g = 1.0 / (1.0 - rho).max(1e-12);
+    let computed = report.kept_energy.len() as i32;
+    let beyond = if traced > 0 {
+        rho.powi((traced as i32 - computed).max(0))
+    } else {
+        1.0
+    };
     let (mut series_tail, mut bounce_truncation) = (0.0f64, 0.0f64);
     for c in 0..3 {
         let kept: f64 = report.kept_energy.iter().map(|e| e[c].max(0.0)).sum();
         let last = report.kept_energy.last().map_or(0.0, |e| e[c].max(0.0));
-        let tail = last * rho * g;
-        let dropped: f64 = report
-            .energy
-            .iter()
-            .zip(&report.kept_energy)
-            .map(|(s, k)| (s[c] - k[c]).abs() * g)
-            .sum();
+        let tail = last * rho * g * beyond;
+        let dropped: f64 = if traced > 0 {
+            0.0
+        } else {
+            report
+                .energy
+                .iter()
+                .zip(&report.kept_energy)
+                .map(|(s, k)| (s[c] - k[c]).abs() * g)
+                .sum()
+        };
         let total = kept + tail + dropped;
         if total > 0.0 && total.is_finite() {
             series_tail = series_tail.max(tail / total);
@@ -202,7 +223,8 @@ pub fn compute_transport(
     obs: &dyn Observer,
 ) -> Result<TransportOutput, BakeError> {
     check_params(&params, ib.levels() as u32)?;
-    let (t, rstats, refine_s) = refine_t(ib, caster, &params, light, None, obs)?;
+    let (mut t, rstats, refine_s) = refine_t(ib, caster, &params, light, None, obs)?;
+    trace_level0_bounces(ib, caster, &params, policy, None, &mut t, obs);
     let dropped = rstats.dropped_share();
     let mut out = finish_transport(ib, t, rstats, params, policy, refine_s, obs)?;
     out.refinement_drop = Some(dropped);
@@ -221,6 +243,54 @@ pub fn refinement_warning(drop: &RefinementDrop, epsilon: f32, tolerance: f64) -
             if d > 0.0 { "dark" } else { "bright" }
         )
     })
+}
+
+/// The deepest vertex of the level-0 receivers' paths (`path_bounces`) under `params` and
+/// `policy`, or 0 when the series chains their bounces: the fixed bounce count, or
+/// [`MAX_VERTEX`] with `--bounces auto`.
+pub fn traced_vertex(params: &TransportParams, policy: BouncePolicy) -> u32 {
+    if policy.level0_paths == 0 || params.bounces_on_all_receivers {
+        0
+    } else if policy.auto {
+        MAX_VERTEX
+    } else {
+        params.bounces
+    }
+}
+
+/// Bounces 2 and later of the level-0 receivers that `wanted` names (all without it) by
+/// path tracing, into `t.bounce0`; nothing when the policy leaves them to the series.
+pub fn trace_level0_bounces(
+    ib: &IndexedBasis,
+    caster: &dyn RayCaster,
+    params: &TransportParams,
+    policy: BouncePolicy,
+    wanted: Option<&(dyn Fn(usize) -> bool + Sync)>,
+    t: &mut ReceiverLinks,
+    obs: &dyn Observer,
+) {
+    let max_vertex = traced_vertex(params, policy);
+    if max_vertex == 0 {
+        return;
+    }
+    obs.stage("level-0 bounces by path tracing");
+    let t0 = Instant::now();
+    let settings = PathSettings {
+        sender_levels: params.sender_levels as usize,
+        paths: policy.level0_paths,
+        max_vertex,
+        seed: params.seed,
+    };
+    t.bounce0 = level0_bounces(ib, caster, settings, wanted);
+    let links: usize = t.bounce0.iter().map(|r| r.len()).sum();
+    obs.done(
+        "level-0 bounces by path tracing",
+        t0.elapsed().as_secs_f64(),
+        &format!(
+            "{} paths per receiver, vertices 2 to {max_vertex}, {links} links",
+            policy.level0_paths
+        ),
+    );
 }
 
 /// The refinement of T (optionally only of the receivers marked in `needed`, for a shard);
@@ -297,7 +367,24 @@ pub fn finish_transport(
     let drop = estimate(ib, &t);
     let senders = b.level_offsets[params.sender_levels as usize] as usize;
     let receivers = b.len();
-    let run = run_series(ib, &t, &params, policy, senders, obs)?;
+    let mut run = run_series(ib, &t, &params, policy, senders, obs)?;
+    let traced = traced_vertex(&params, policy);
+    if traced > 0 {
+        // The level-0 rows of bounces 2 and later come from the paths, not the chain.
+        let n0 = b.level_range(0).len();
+        if t.bounce0.len() != n0 {
+            return Err(BakeError::InvalidParameter(format!(
+                "the path-traced bounces hold {} of the {n0} level-0 receivers' rows",
+                t.bounce0.len()
+            )));
+        }
+        if run.extra.len() < n0 {
+            run.extra.resize(n0, Vec::new());
+        }
+        for (row, traced_row) in run.extra.iter_mut().zip(&t.bounce0) {
+            row.clone_from(traced_row);
+        }
+    }
     let p = pack_s(ib, &t, &run.extra, &params, senders)?;
     let SeriesRun {
         rho,
@@ -307,7 +394,7 @@ pub fn finish_transport(
         bounces_s,
         ..
     } = run;
-    let error = error_estimate(&report, rho, policy.tolerance, p.qerr, p.max_link);
+    let error = error_estimate(&report, rho, policy.tolerance, p.qerr, p.max_link, traced);
     let mut warnings = error_warnings(&error, &report, rho, needed, &params, policy, obs);
     if let Some(w) = refinement_warning(&drop, params.epsilon, policy.tolerance) {
         obs.warn(&w);

@@ -219,6 +219,67 @@ fn shards_merged(d: &Path, extra: &[&str], n: u32, tag: &str) -> (Vec<PathBuf>, 
     (files, merged)
 }
 
+/// With `--level0-paths` each shard traces the paths of the level-0 receivers it owns, and the
+/// merge puts them in place of the series' level-0 rows: the single bake's file, byte for
+/// byte, and not the file without paths. A shard without paths does not merge with one with.
+#[test]
+fn merged_shards_with_path_traced_bounces_equal_the_single_bake() {
+    let d = temp("shards-paths");
+    let paths = ["--level0-paths", "64"];
+    let single = |extra: &[&str], name: &str| {
+        let f = d.join(name);
+        run(bake()
+            .arg("builtin:cornell")
+            .args(SMALL)
+            .args(extra)
+            .args(["-q", "-o"])
+            .arg(&f));
+        std::fs::read(&f).unwrap()
+    };
+    let full = single(&paths, "full.mlt");
+    let chained = single(&[], "chained.mlt");
+    assert!(full != chained, "--level0-paths changed nothing");
+    let (files, merged) = shards_merged(&d, &paths, 3, "paths");
+    assert!(
+        std::fs::read(&merged).unwrap() == full,
+        "the merge differs from the single bake"
+    );
+    let other = d.join("chained1.mlt");
+    run(bake()
+        .arg("builtin:cornell")
+        .args(SMALL)
+        .args(["--shard", "1/3", "-q", "-o"])
+        .arg(&other));
+    let r = bake()
+        .arg("merge")
+        .args([&files[0], &other, &files[2]])
+        .arg("-o")
+        .arg(d.join("x.mlt"))
+        .output()
+        .unwrap();
+    assert!(!r.status.success());
+    assert!(
+        String::from_utf8_lossy(&r.stderr).contains("another bake"),
+        "{}",
+        String::from_utf8_lossy(&r.stderr)
+    );
+    // The option and the bounces of every receiver exclude each other.
+    let r = bake()
+        .arg("builtin:cornell")
+        .args(SMALL)
+        .args(paths)
+        .args(["--bounces-on-all-receivers", "-q", "-o"])
+        .arg(d.join("y.mlt"))
+        .output()
+        .unwrap();
+    assert!(!r.status.success());
+    assert!(
+        String::from_utf8_lossy(&r.stderr).contains("--bounces-on-all-receivers"),
+        "{}",
+        String::from_utf8_lossy(&r.stderr)
+    );
+}
+
 /// With `--bounces auto` the shards carry the policy and the merge chooses the same count.
 #[test]
 fn merged_shards_with_auto_bounces_equal_the_single_bake() {

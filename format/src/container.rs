@@ -40,7 +40,8 @@
 //! dropped) and the per-row sums behind it in `TSHD` (its current layout); 1.6 the `FLT2`
 //! section, which replaces `FLAT` in the files it writes: the flat basis by a rule with one
 //! more parameter (`finer_cover`: coarser points left out where finer ones cover them), so a
-//! 1.5 reader skips it and builds the flat basis by its own rule. From 1.4 the bake
+//! 1.5 reader skips it and builds the flat basis by its own rule; 1.7 the path-traced bounces of
+//! the coarsest receivers in `TSHD` (its current layout: `level0_paths` and the owned rows). From 1.4 the bake
 //! stores each level's points in Morton order; readers do not rely on it.
 
 use std::ops::Deref;
@@ -54,9 +55,9 @@ use crate::error::FormatError;
 pub const MAGIC: [u8; 8] = *b"\x89MLTBK\r\n";
 pub const VERSION_MAJOR: u16 = 1;
 /// The minor version this build writes (the module docs list what each one added).
-pub const VERSION_MINOR: u16 = 6;
+pub const VERSION_MINOR: u16 = 7;
 /// The first minor version with the `TSHD` layout this build reads.
-pub const SHARD_LAYOUT_MINOR: u16 = 5;
+pub const SHARD_LAYOUT_MINOR: u16 = 7;
 pub const FIXED_HEADER: usize = 64;
 pub const ENTRY_SIZE: usize = 32;
 pub const ALIGN: usize = 16;

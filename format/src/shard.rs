@@ -34,6 +34,15 @@ pub struct ShardSection {
     /// floats per sender): what the merge needs for [`crate::meta::RefinementDrop`].
     pub row_gathered: Vec<f32>,
     pub emission: Vec<f32>,
+    /// Paths per level-0 receiver for its bounces 2 and later (format 1.7 and later; 0: the
+    /// series chains them), and the rows they gave for the level-0 receivers this shard owns:
+    /// `bounce_rows` ascending, `bounce_offsets` (`bounce_rows.len() + 1`) into
+    /// `bounce_senders`, `LINK_DIM` floats per link in `bounce_values`.
+    pub level0_paths: u32,
+    pub bounce_rows: Vec<u32>,
+    pub bounce_offsets: Vec<u32>,
+    pub bounce_senders: Vec<u32>,
+    pub bounce_values: Vec<f32>,
 }
 
 impl ShardSection {
@@ -55,6 +64,16 @@ impl ShardSection {
             || !self.emission.len().is_multiple_of(3)
         {
             return Err("row arrays are inconsistent".into());
+        }
+        if self.bounce_offsets.len() != self.bounce_rows.len() + 1
+            || self.bounce_offsets.first() != Some(&0)
+            || self.bounce_offsets.windows(2).any(|w| w[0] > w[1])
+            || self.bounce_offsets.last().map(|&o| o as usize) != Some(self.bounce_senders.len())
+            || self.bounce_values.len() != self.bounce_senders.len() * LINK_DIM
+            || self.bounce_rows.windows(2).any(|w| w[0] >= w[1])
+            || self.bounce_rows.iter().any(|&r| r as usize >= points)
+        {
+            return Err("path-traced bounce rows are inconsistent".into());
         }
         if self.rows.windows(2).any(|w| w[0] >= w[1])
             || self.rows.iter().any(|&r| r as usize >= points)
