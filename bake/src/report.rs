@@ -363,5 +363,12 @@ pub fn info_text(info: &FileInfo) -> String {
     if let Some(r) = &info.report {
         o.push_str(&estimate_table(r, info.refinement_drop.as_ref()));
     }
+    if let Some(b) = &info.bounce_method {
+        let _ = writeln!(
+            o,
+            "later bounces level 0's traced as paths: {} per receiver, vertices 2 to {} (--level0-paths)",
+            b.level0_paths, b.max_vertex
+        );
+    }
     o
 }

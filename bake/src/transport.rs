@@ -8,8 +8,8 @@ use mlt_format::light::LightDesc;
 use mlt_format::light_model::Light;
 use mlt_format::links::{Links, SenderLinks, LINK_DIM};
 use mlt_format::meta::{
-    ErrorEstimate, LeftOut, RefinementDrop, TransportMeta, TransportParams, TransportReport,
-    TransportStats, TransportTimings,
+    BounceMethod, ErrorEstimate, LeftOut, RefinementDrop, TransportMeta, TransportParams,
+    TransportReport, TransportStats, TransportTimings,
 };
 use mlt_format::{IndexedBasis, Transport};
 use mlt_scenes::RayCaster;
@@ -459,6 +459,10 @@ pub fn finish_transport(
             links: p.links,
             report: Some(report_section),
             drop: Some(drop),
+            bounces: (traced > 0).then_some(BounceMethod {
+                level0_paths: policy.level0_paths,
+                max_vertex: traced,
+            }),
         },
         timings,
         warnings,

@@ -239,6 +239,19 @@ fn merged_shards_with_path_traced_bounces_equal_the_single_bake() {
     let full = single(&paths, "full.mlt");
     let chained = single(&[], "chained.mlt");
     assert!(full != chained, "--level0-paths changed nothing");
+    // The file says how its level-0 bounces were computed (`TBNC`), a chained one does not.
+    let method = |name: &str| {
+        mlt_format::BakedFile::open(&d.join(name))
+            .unwrap()
+            .bounce_method()
+            .unwrap()
+    };
+    let traced = method("full.mlt").expect("no TBNC section");
+    assert_eq!(
+        (traced.level0_paths, traced.max_vertex),
+        (64, mlt_bake::path_bounces::MAX_VERTEX)
+    );
+    assert_eq!(method("chained.mlt"), None);
     let (files, merged) = shards_merged(&d, &paths, 3, "paths");
     assert!(
         std::fs::read(&merged).unwrap() == full,

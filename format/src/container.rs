@@ -24,7 +24,7 @@
 //! A reader reads the files of its own major version only. Within a major version:
 //! - a minor version may add sections under new tags, which older readers skip;
 //! - the sections of a baked file (`META`, `BASE`, `RTRE`, `TRNS`, `SLNK`, `TRPT`, `FLAT`,
-//!   `TDRP`, `FLT2`) keep their layout for the whole major version, so every reader of the
+//!   `TDRP`, `FLT2`, `TBNC`) keep their layout for the whole major version, so every reader of the
 //!   major version reads them from a file of any minor version;
 //! - the layout of `TSHD`, which only the intermediate shard files of `bake --shard` carry
 //!   (they are merged by the build that computed them), may change with a minor version. A
@@ -40,8 +40,9 @@
 //! dropped) and the per-row sums behind it in `TSHD` (its current layout); 1.6 the `FLT2`
 //! section, which replaces `FLAT` in the files it writes: the flat basis by a rule with one
 //! more parameter (`finer_cover`: coarser points left out where finer ones cover them), so a
-//! 1.5 reader skips it and builds the flat basis by its own rule; 1.7 the path-traced bounces of
-//! the coarsest receivers in `TSHD` (its current layout: `level0_paths` and the owned rows). From 1.4 the bake
+//! 1.5 reader skips it and builds the flat basis by its own rule; 1.7 the optional `TBNC` section
+//! (how the coarsest receivers' later bounces were traced as paths) and those paths' rows in
+//! `TSHD` (its current layout: `level0_paths` and the owned rows). From 1.4 the bake
 //! stores each level's points in Morton order; readers do not rely on it.
 
 use std::ops::Deref;

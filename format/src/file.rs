@@ -20,7 +20,7 @@ use crate::flat_section::{
     ArchivedFlatSection, ArchivedFlatSection1_5, FlatRule, FlatSection, StoredFlat,
 };
 use crate::links::{ArchivedLinks, Links};
-use crate::meta::{Meta, RefinementDrop, TransportMeta, TransportReport};
+use crate::meta::{BounceMethod, Meta, RefinementDrop, TransportMeta, TransportReport};
 use crate::rtree::RTree;
 use crate::shard::ShardSection;
 use crate::shepard::IndexedBasis;
@@ -50,6 +50,9 @@ pub const TAG_FLAT2: [u8; 4] = *b"FLT2";
 /// Added in format 1.5: the light the refinement of T dropped ([`RefinementDrop`]);
 /// optional, so older files still read.
 pub const TAG_DROP: [u8; 4] = *b"TDRP";
+/// Added in format 1.7: how the level-0 rows' later bounces were computed when the bake
+/// traced them as paths ([`BounceMethod`]); optional, absent for the series' chain.
+pub const TAG_BOUNCES: [u8; 4] = *b"TBNC";
 
 /// The minor versions (of [`VERSION_MAJOR`]) from which this build reads the section `tag`:
 /// any for the sections of a baked file, whose layout is fixed within the major version; for
@@ -96,6 +99,8 @@ pub struct Transport {
     pub report: Option<TransportReport>,
     /// The `TDRP` section; `None` in files written before format 1.5.
     pub drop: Option<RefinementDrop>,
+    /// The `TBNC` section; `None` where the series chained the bounces (and before 1.7).
+    pub bounces: Option<BounceMethod>,
 }
 
 /// How to write.
@@ -135,6 +140,10 @@ pub fn encode(contents: &BakeContents, opts: WriteOptions) -> Result<Vec<u8>, Fo
         if let Some(d) = &t.drop {
             let bytes = rkyv::to_bytes::<rancor::Error>(d).map_err(ser_err(TAG_DROP))?;
             sections.push((TAG_DROP, bytes));
+        }
+        if let Some(b) = &t.bounces {
+            let bytes = rkyv::to_bytes::<rancor::Error>(b).map_err(ser_err(TAG_BOUNCES))?;
+            sections.push((TAG_BOUNCES, bytes));
         }
     }
     if let Some(s) = &contents.shard {
@@ -376,6 +385,15 @@ impl BakedFile {
         self.section::<RefinementDrop>(TAG_DROP).map(Some)
     }
 
+    /// The `TBNC` section, if the file has one (format 1.7 and later, with level-0 bounces
+    /// traced as paths).
+    pub fn bounce_method(&self) -> Result<Option<BounceMethod>, FormatError> {
+        if !self.has_section(TAG_BOUNCES) {
+            return Ok(None);
+        }
+        self.section::<BounceMethod>(TAG_BOUNCES).map(Some)
+    }
+
     /// The `TSHD` section of a shard file, validated against the basis' size.
     pub fn shard(&self) -> Result<Option<ShardSection>, FormatError> {
         if !self.has_section(TAG_SHARD) {
@@ -413,6 +431,7 @@ impl BakedFile {
                     links,
                     report: self.transport_report()?,
                     drop: self.refinement_drop()?,
+                    bounces: self.bounce_method()?,
                 })
             }
         };
@@ -534,6 +553,7 @@ impl BakedFile {
             transport: self.transport_meta()?,
             report: self.transport_report()?,
             refinement_drop: self.refinement_drop()?,
+            bounce_method: self.bounce_method()?,
         })
     }
 }
@@ -554,6 +574,8 @@ pub struct FileInfo {
     pub report: Option<TransportReport>,
     /// The `TDRP` section (format 1.5 and later).
     pub refinement_drop: Option<RefinementDrop>,
+    /// The `TBNC` section (format 1.7 and later, level-0 bounces traced as paths).
+    pub bounce_method: Option<BounceMethod>,
 }
 
 #[derive(Clone, Debug, Serialize)]

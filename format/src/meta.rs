@@ -300,6 +300,20 @@ data! {
 }
 
 data! {
+    /// The `TBNC` section (since format 1.7; absent when the series chained the bounces, in
+    /// older files and in shard files): how the bake computed the level-0 receivers' bounces 2
+    /// and later when it traced them as paths (`bake --level0-paths`) instead of chaining them
+    /// through the level-0 senders. Those rows of `S` then hold every bounce off the true
+    /// geometry, so a viewer must not re-emit bounce light through them again.
+    pub struct BounceMethod {
+        /// Paths per level-0 receiver.
+        pub level0_paths: u32,
+        /// The deepest path vertex that deposits light (bounce `b` is vertex `b`).
+        pub max_vertex: u32,
+    }
+}
+
+data! {
     /// The `TDRP` section (since format 1.5; absent from older files, basis-only files and
     /// shard files): the bake's estimate of the single-bounce light that the refinement of T
     /// (Fig. 5 and its budget rule) dropped, under a representative emission: the file's own
