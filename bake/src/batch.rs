@@ -152,6 +152,7 @@ pub fn stats_json(file: &Path, file_bytes: u64, out: &BakeOutput) -> serde_json:
         }),
         "report": out.contents.transport.as_ref().and_then(|t| t.report.as_ref()),
         "refinement_drop": out.contents.transport.as_ref().and_then(|t| t.drop.as_ref()),
+        "bounce_method": out.contents.transport.as_ref().and_then(|t| t.bounces.as_ref()),
         "error_estimate_total": out.contents.transport.as_ref().and_then(|t| {
             t.report
                 .as_ref()

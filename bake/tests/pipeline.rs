@@ -252,6 +252,18 @@ fn merged_shards_with_path_traced_bounces_equal_the_single_bake() {
         (64, mlt_bake::path_bounces::MAX_VERTEX)
     );
     assert_eq!(method("chained.mlt"), None);
+    // So do the bake's statistics.
+    let json = d.join("full.json");
+    run(bake()
+        .arg("builtin:cornell")
+        .args(SMALL)
+        .args(paths)
+        .args(["-q", "-o"])
+        .arg(d.join("full2.mlt"))
+        .arg("--stats-json")
+        .arg(&json));
+    let stats: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    assert_eq!(stats["bounce_method"]["level0_paths"], 64);
     let (files, merged) = shards_merged(&d, &paths, 3, "paths");
     assert!(
         std::fs::read(&merged).unwrap() == full,
