@@ -189,14 +189,14 @@ pub fn link_distance(a: &[f32; LINK_DIM], b: &[f32; LINK_DIM]) -> f32 {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use mlt_format::Basis;
     use mlt_scenes::SphereCaster;
 
     /// A one-level basis on the 12 vertices of an icosahedron inscribed in the closed sphere
     /// of radius 2, normals pointing inwards, supports wide enough to overlap.
-    fn sphere_basis() -> IndexedBasis {
+    pub(crate) fn sphere_basis() -> IndexedBasis {
         let mesh = mlt_scenes::builtin::icosphere(2.0, 0, [0.5; 3]);
         let mut b = Basis::default();
         for p in &mesh.positions {

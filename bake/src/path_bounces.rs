@@ -165,23 +165,8 @@ fn trace_receiver(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use mlt_format::Basis;
+    use crate::gather::tests::sphere_basis;
     use mlt_scenes::SphereCaster;
-
-    /// A one-level basis on the 12 vertices of an icosahedron inscribed in the closed sphere
-    /// of radius 2, normals pointing inwards, supports wide enough to overlap.
-    fn sphere_basis() -> IndexedBasis {
-        let mesh = mlt_scenes::builtin::icosphere(2.0, 0, [0.5; 3]);
-        let mut b = Basis::default();
-        for p in &mesh.positions {
-            b.positions.push(p.to_array());
-            b.normals.push((-p.normalize()).to_array());
-            b.radii.push(3.2);
-        }
-        b.level_offsets = vec![0, b.positions.len() as u32];
-        b.disk_radii = vec![2.0];
-        IndexedBasis::build(b).unwrap()
-    }
 
     /// `n_i . sum_j X_ij` per channel: receiver `i`'s bounce light under unit irradiance at
     /// every sender.

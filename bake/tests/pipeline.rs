@@ -275,19 +275,7 @@ fn merged_shards_with_path_traced_bounces_equal_the_single_bake() {
         .args(SMALL)
         .args(["--shard", "1/3", "-q", "-o"])
         .arg(&other));
-    let r = bake()
-        .arg("merge")
-        .args([&files[0], &other, &files[2]])
-        .arg("-o")
-        .arg(d.join("x.mlt"))
-        .output()
-        .unwrap();
-    assert!(!r.status.success());
-    assert!(
-        String::from_utf8_lossy(&r.stderr).contains("another bake"),
-        "{}",
-        String::from_utf8_lossy(&r.stderr)
-    );
+    merge_refused_as_another_bake(&d, &[&files[0], &other, &files[2]]);
     // The option and the bounces of every receiver exclude each other.
     let r = bake()
         .arg("builtin:cornell")
@@ -337,10 +325,14 @@ fn merged_shards_with_auto_bounces_equal_the_single_bake() {
         .args(SMALL)
         .args(["--shard", "1/2", "-q", "-o"])
         .arg(&fixed));
+    merge_refused_as_another_bake(&d, &[&files[0], &fixed]);
+}
+
+/// `bake merge` of `files` into `d/x.mlt` fails, saying a shard belongs to another bake.
+fn merge_refused_as_another_bake(d: &Path, files: &[&PathBuf]) {
     let r = bake()
         .arg("merge")
-        .arg(&files[0])
-        .arg(&fixed)
+        .args(files)
         .arg("-o")
         .arg(d.join("x.mlt"))
         .output()
