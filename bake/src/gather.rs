@@ -61,6 +61,41 @@ impl Scratch {
         &self.acc[j as usize]
     }
 
+    /// Adds `scale * v * B_j(y, n)` for every sender `j` of levels `0..levels` with weight at
+    /// the surface point `(y, n)`, each level's weights normalised over that level (Eq. 2):
+    /// `v` spread over the sender hierarchy's expansion at `y`. Returns the number of levels
+    /// with no support there.
+    #[inline]
+    pub fn add_at_hit(
+        &mut self,
+        cells: &SenderCells,
+        levels: usize,
+        y: [f32; 3],
+        n: [f32; 3],
+        v: &[f32; LINK_DIM],
+        scale: f32,
+    ) -> u64 {
+        let Some(cell) = cells.cell_at(y) else {
+            return levels as u64;
+        };
+        let mut unsupported = 0;
+        let mut weights = std::mem::take(&mut self.weights);
+        for m in 0..levels {
+            weights.clear();
+            let sum = cells.for_each_weight(cell, m, y, n, |j, w| weights.push((j as u32, w)));
+            if sum > MIN_WEIGHT_SUM {
+                let inv = scale / sum;
+                for &(j, w) in &weights {
+                    self.add(j, v, w * inv);
+                }
+            } else {
+                unsupported += 1;
+            }
+        }
+        self.weights = weights;
+        unsupported
+    }
+
     pub fn clear(&mut self) {
         for &j in &self.touched {
             self.acc[j as usize] = [0.0; LINK_DIM];
@@ -129,24 +164,7 @@ pub fn gather(
             rho[2] * dir.y,
             rho[2] * dir.z,
         ];
-        let Some(cell) = cells.cell_at(y) else {
-            counts.unsupported += sender_levels as u64;
-            continue;
-        };
-        for m in 0..sender_levels {
-            let mut weights = std::mem::take(&mut scratch.weights);
-            weights.clear();
-            let sum = cells.for_each_weight(cell, m, y, ny, |j, w| weights.push((j as u32, w)));
-            if sum > MIN_WEIGHT_SUM {
-                let inv = w_ray / sum;
-                for &(j, w) in &weights {
-                    scratch.add(j, &v, w * inv);
-                }
-            } else {
-                counts.unsupported += 1;
-            }
-            scratch.weights = weights;
-        }
+        counts.unsupported += scratch.add_at_hit(cells, sender_levels, y, ny, &v, w_ray);
     }
     counts
 }

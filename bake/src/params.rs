@@ -383,17 +383,13 @@ pub fn bounce_policy(opts: &BakeOptions) -> Result<BouncePolicy, BakeError> {
             "the bounce tolerance must be a fraction in (0, 1), got {tolerance}"
         )));
     }
-    let level0_paths = match (opts.level0_paths, opts.bounces_on_all_receivers) {
-        (Some(n), true) if n > 0 => {
-            return Err(BakeError::InvalidParameter(format!(
-                "--level0-paths {n} traces the coarsest receivers' bounces, which \
-                 --bounces-on-all-receivers chains through every receiver instead; give one"
-            )))
-        }
-        (_, true) => 0,
-        (Some(n), false) => n,
-        (None, false) => 0,
-    };
+    let level0_paths = opts.level0_paths.unwrap_or(0);
+    if level0_paths > 0 && opts.bounces_on_all_receivers {
+        return Err(BakeError::InvalidParameter(format!(
+            "--level0-paths {level0_paths} traces the coarsest receivers' bounces, which \
+             --bounces-on-all-receivers chains through every receiver instead; give one"
+        )));
+    }
     Ok(BouncePolicy {
         auto: opts.resolved_bounces().auto,
         tolerance,

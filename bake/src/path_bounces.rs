@@ -20,7 +20,6 @@
 
 use glam::Vec3;
 use mlt_format::links::LINK_DIM;
-use mlt_format::shepard::MIN_WEIGHT_SUM;
 use mlt_format::IndexedBasis;
 use mlt_scenes::sampling::{cosine_hemisphere, tangent_frame};
 use mlt_scenes::RayCaster;
@@ -63,8 +62,11 @@ pub fn level0_bounces(
     settings: PathSettings,
     wanted: Option<&(dyn Fn(usize) -> bool + Sync)>,
 ) -> Rows {
-    let cells = SenderCells::new(ib, settings.sender_levels);
     let n0 = ib.basis.level_range(0).len();
+    if settings.max_vertex < 2 {
+        return vec![Vec::new(); n0];
+    }
+    let cells = SenderCells::new(ib, settings.sender_levels);
     let senders = ib.basis.level_offsets[settings.sender_levels] as usize;
     let eps = caster.ray_epsilon();
     (0..n0)
@@ -72,16 +74,16 @@ pub fn level0_bounces(
         .map_init(
             || Scratch::new(senders),
             |scratch, i| {
-                if settings.max_vertex < 2 || wanted.is_some_and(|w| !w(i)) {
+                if wanted.is_some_and(|w| !w(i)) {
                     return Vec::new();
                 }
                 scratch.clear();
                 trace_receiver(ib, &cells, caster, i, settings, eps, scratch);
-                let mut touched = scratch.touched.clone();
-                touched.sort_unstable();
-                touched
-                    .into_iter()
-                    .map(|j| (j, *scratch.get(j)))
+                scratch.touched.sort_unstable();
+                scratch
+                    .touched
+                    .iter()
+                    .map(|&j| (j, *scratch.get(j)))
                     .filter(|(_, v)| v.iter().any(|x| *x != 0.0))
                     .collect()
             },
@@ -113,7 +115,6 @@ fn trace_receiver(
     let rotation = rng.next_f32();
     let w_ray = 2.0 / paths as f32;
     let origin = x + n * eps;
-    let mut weights: Vec<(u32, f32)> = Vec::new();
     for k in 0..paths {
         let dir1 = hemisphere_direction(k, paths, rotation, t, bt, n);
         let Some(mut hit) = caster.intersect(origin, dir1, 0.0, f32::INFINITY) else {
@@ -135,19 +136,7 @@ fn trace_receiver(
             }
             let v: [f32; LINK_DIM] = std::array::from_fn(|d| beta[d / 3] * dir1[d % 3]);
             let (y, ny) = (next.position.to_array(), next.shading_normal.to_array());
-            if let Some(cell) = cells.cell_at(y) {
-                for m in 0..sender_levels {
-                    weights.clear();
-                    let sum =
-                        cells.for_each_weight(cell, m, y, ny, |j, w| weights.push((j as u32, w)));
-                    if sum > MIN_WEIGHT_SUM {
-                        let inv = w_ray / sum;
-                        for &(j, w) in &weights {
-                            scratch.add(j, &v, w * inv);
-                        }
-                    }
-                }
-            }
+            scratch.add_at_hit(cells, sender_levels, y, ny, &v, w_ray);
             if vertex >= ROULETTE_FROM {
                 let q = beta[0].max(beta[1]).max(beta[2]).min(1.0);
                 if q.is_nan() || q <= 0.0 || rng.next_f32() >= q {

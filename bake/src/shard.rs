@@ -229,13 +229,8 @@ pub fn merge(shards: Vec<BakeContents>, obs: &dyn Observer) -> Result<BakeConten
     let mut links = Vec::new();
     for (r, k, row) in rows {
         let Some(s) = &shards[k].shard else { continue };
-        let (a, e) = (s.offsets[row] as usize, s.offsets[row + 1] as usize);
         links.clear();
-        for j in a..e {
-            let mut v = [0.0f32; LINK_DIM];
-            v.copy_from_slice(&s.values[j * LINK_DIM..(j + 1) * LINK_DIM]);
-            links.push((s.senders[j], v));
-        }
+        links.extend(s.row_links(row));
         // Per-row unsupported counts are only needed by shards; the totals are in rstats.
         let mut gathered = [0.0f32; LINK_DIM];
         gathered.copy_from_slice(&s.row_gathered[LINK_DIM * row..LINK_DIM * (row + 1)]);
@@ -260,17 +255,7 @@ pub fn merge(shards: Vec<BakeContents>, obs: &dyn Observer) -> Result<BakeConten
                         s.index, s.count
                     ));
                 }
-                let (a, e) = (
-                    s.bounce_offsets[k] as usize,
-                    s.bounce_offsets[k + 1] as usize,
-                );
-                t.bounce0[r] = (a..e)
-                    .map(|j| {
-                        let mut v = [0.0f32; LINK_DIM];
-                        v.copy_from_slice(&s.bounce_values[j * LINK_DIM..(j + 1) * LINK_DIM]);
-                        (s.bounce_senders[j], v)
-                    })
-                    .collect();
+                t.bounce0[r] = s.bounce_links(k).collect();
             }
         }
         if let Some(r) = filled.iter().position(|f| !f) {

@@ -354,7 +354,7 @@ pub fn refine_t(
 /// with the shards' T and gets the single bake's S).
 pub fn finish_transport(
     ib: &IndexedBasis,
-    t: ReceiverLinks,
+    mut t: ReceiverLinks,
     rstats: RefineStats,
     params: TransportParams,
     policy: BouncePolicy,
@@ -381,8 +381,8 @@ pub fn finish_transport(
         if run.extra.len() < n0 {
             run.extra.resize(n0, Vec::new());
         }
-        for (row, traced_row) in run.extra.iter_mut().zip(&t.bounce0) {
-            row.clone_from(traced_row);
+        for (row, traced_row) in run.extra.iter_mut().zip(std::mem::take(&mut t.bounce0)) {
+            *row = traced_row;
         }
     }
     let p = pack_s(ib, &t, &run.extra, &params, senders)?;

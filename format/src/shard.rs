@@ -46,6 +46,23 @@ pub struct ShardSection {
 }
 
 impl ShardSection {
+    /// The links of the `k`-th row of T held (receiver `rows[k]`); valid after
+    /// [`ShardSection::validate`].
+    pub fn row_links(&self, k: usize) -> impl Iterator<Item = (u32, [f32; LINK_DIM])> + '_ {
+        links_at(&self.offsets, &self.senders, &self.values, k)
+    }
+
+    /// The links of the `k`-th path-traced row held (level-0 receiver `bounce_rows[k]`); valid
+    /// after [`ShardSection::validate`].
+    pub fn bounce_links(&self, k: usize) -> impl Iterator<Item = (u32, [f32; LINK_DIM])> + '_ {
+        links_at(
+            &self.bounce_offsets,
+            &self.bounce_senders,
+            &self.bounce_values,
+            k,
+        )
+    }
+
     /// Checks the invariants a merge relies on against a basis of `points` points and
     /// `levels` levels.
     pub fn validate(&self, points: usize, levels: usize) -> Result<(), String> {
@@ -55,22 +72,18 @@ impl ShardSection {
                 self.index, self.count
             ));
         }
-        if self.offsets.len() != self.rows.len() + 1
-            || self.offsets.first() != Some(&0)
-            || self.offsets.windows(2).any(|w| w[0] > w[1])
-            || self.offsets.last().map(|&o| o as usize) != Some(self.senders.len())
-            || self.values.len() != self.senders.len() * LINK_DIM
+        if !offsets_fit(&self.offsets, self.rows.len(), &self.senders, &self.values)
             || self.row_gathered.len() != self.rows.len() * LINK_DIM
             || !self.emission.len().is_multiple_of(3)
         {
             return Err("row arrays are inconsistent".into());
         }
-        if self.bounce_offsets.len() != self.bounce_rows.len() + 1
-            || self.bounce_offsets.first() != Some(&0)
-            || self.bounce_offsets.windows(2).any(|w| w[0] > w[1])
-            || self.bounce_offsets.last().map(|&o| o as usize) != Some(self.bounce_senders.len())
-            || self.bounce_values.len() != self.bounce_senders.len() * LINK_DIM
-            || self.bounce_rows.windows(2).any(|w| w[0] >= w[1])
+        if !offsets_fit(
+            &self.bounce_offsets,
+            self.bounce_rows.len(),
+            &self.bounce_senders,
+            &self.bounce_values,
+        ) || self.bounce_rows.windows(2).any(|w| w[0] >= w[1])
             || self.bounce_rows.iter().any(|&r| r as usize >= points)
         {
             return Err("path-traced bounce rows are inconsistent".into());
@@ -91,4 +104,28 @@ impl ShardSection {
         }
         Ok(())
     }
+}
+
+/// Whether `offsets` delimits `rows` rows of `senders` with `LINK_DIM` floats of `values` each.
+fn offsets_fit(offsets: &[u32], rows: usize, senders: &[u32], values: &[f32]) -> bool {
+    offsets.len() == rows + 1
+        && offsets.first() == Some(&0)
+        && offsets.windows(2).all(|w| w[0] <= w[1])
+        && offsets.last().map(|&o| o as usize) == Some(senders.len())
+        && values.len() == senders.len() * LINK_DIM
+}
+
+/// Row `k`'s `(sender, value)` links of a row-major layout checked by [`offsets_fit`].
+fn links_at<'a>(
+    offsets: &[u32],
+    senders: &'a [u32],
+    values: &'a [f32],
+    k: usize,
+) -> impl Iterator<Item = (u32, [f32; LINK_DIM])> + 'a {
+    let (a, e) = (offsets[k] as usize, offsets[k + 1] as usize);
+    (a..e).map(move |j| {
+        let mut v = [0.0f32; LINK_DIM];
+        v.copy_from_slice(&values[j * LINK_DIM..(j + 1) * LINK_DIM]);
+        (senders[j], v)
+    })
 }

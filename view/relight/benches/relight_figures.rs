@@ -47,7 +47,7 @@ fn load(frames: usize) -> anyhow::Result<Setup> {
     let mut relighter = CpuRelighter::new(&baked.ib, baked.links, caster, sender_levels, 8)
         .expect("relighting operators");
     // As the viewer relights this file (its defaults).
-    relighter.use_bounce_corrections(&tm, 1);
+    relighter.use_bounce_corrections(&tm, None, None);
     let (lo, hi) = (
         Vec3::from(meta.scene.bounds_min),
         Vec3::from(meta.scene.bounds_max),

@@ -35,7 +35,7 @@ use std::time::Instant;
 use glam::Vec3;
 use mlt_format::flat_basis::FlatBasis;
 use mlt_format::links::{ArchivedLinks, LINK_DIM};
-use mlt_format::meta::TransportMeta;
+use mlt_format::meta::{BounceMethod, TransportMeta};
 use mlt_format::IndexedBasis;
 use mlt_scenes::RayCaster;
 use rayon::prelude::*;
@@ -50,6 +50,10 @@ use crate::pull_push_op::PullPushOp;
 use crate::receiver_links::ReceiverLinks;
 use crate::relight::{Frame, Relight, StageTimes};
 use crate::support_average::{near_weight, SupportAverage};
+
+/// Steps of the bounce-light feedback a file with the chain of bounces gets by default
+/// ([`CpuRelighter::use_bounce_corrections`]).
+pub const DEFAULT_FEEDBACK_STEPS: u32 = 1;
 
 /// What building the relighter's operators cost, once per loaded file.
 #[derive(Clone, Copy, Debug, Default, Serialize)]
@@ -281,13 +285,22 @@ impl<'a> CpuRelighter<'a> {
     }
 
     /// Turns on the per-frame corrections of a bake's chain of bounces through the coarsest
-    /// receivers, as the viewer relights a file with transport metadata `tm`: the fine
-    /// bounces where [`FineBounceOp::applies_to`] it, and with them `feedback_steps` steps of
-    /// the bounce-light feedback (which re-emits the light the fine bounces add). Both stay
-    /// off for other files.
-    pub fn use_bounce_corrections(&mut self, tm: &TransportMeta, feedback_steps: u32) {
+    /// receivers, as the viewer relights a file with transport metadata `tm` and `TBNC`
+    /// section `traced`: the fine bounces where [`FineBounceOp::applies_to`] it, and with them
+    /// `feedback_steps` steps of the bounce-light feedback (which re-emits the light the fine
+    /// bounces add), by default [`DEFAULT_FEEDBACK_STEPS`], or none where the level-0 rows were
+    /// traced as paths: those rows hold every bounce already, and re-emitting through them
+    /// would count the later bounces twice. Both stay off for other files.
+    pub fn use_bounce_corrections(
+        &mut self,
+        tm: &TransportMeta,
+        traced: Option<&BounceMethod>,
+        feedback_steps: Option<u32>,
+    ) {
         self.fine_bounces = FineBounceOp::applies_to(tm);
-        self.bounce_feedback = if self.fine_bounces { feedback_steps } else { 0 };
+        let traced = traced.is_some_and(|b| b.level0_paths > 0);
+        let steps = feedback_steps.unwrap_or(if traced { 0 } else { DEFAULT_FEEDBACK_STEPS });
+        self.bounce_feedback = if self.fine_bounces { steps } else { 0 };
     }
 
     /// Forgets the lagged feedback's correction: the next frame takes the exact steps.

@@ -98,12 +98,8 @@ pub fn with_viewing<T>(args: &BakedArgs, f: impl FnOnce(Viewing<'_>) -> Result<T
     // Without the fine bounces (the paper's relighting) the feedback, which re-emits their
     // light, is left out too.
     if !relight.no_fine_bounces {
-        // A file whose level-0 rows were traced as paths holds every bounce there already.
-        let traced = file.bounce_method()?.is_some_and(|b| b.level0_paths > 0);
-        let steps = relight
-            .bounce_feedback
-            .unwrap_or(if traced { 0 } else { 1 });
-        relighter.use_bounce_corrections(&tm, steps);
+        let traced = file.bounce_method()?;
+        relighter.use_bounce_corrections(&tm, traced.as_ref(), relight.bounce_feedback);
         relighter.lagged_feedback = relight.feedback_lag.lagged(false);
     }
     if relighter.support_average {

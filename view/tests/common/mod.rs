@@ -63,7 +63,7 @@ pub fn relight_file(path: &Path, spec: &str, light: impl FnOnce(Light) -> Light)
     )
     .expect("relighting operators");
     // As the viewer does for this file (view/src/cmd/load.rs).
-    relighter.use_bounce_corrections(&tm, 1);
+    relighter.use_bounce_corrections(&tm, None, None);
     let frame = relighter.relight(&light).clone();
     let flat = relighter.flat_basis().clone();
     drop(relighter);
