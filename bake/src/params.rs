@@ -143,8 +143,9 @@ pub struct BakeOptions {
     #[serde(default)]
     pub bounces_on_all_receivers: bool,
     /// Trace the coarsest receivers' bounces 2 and later as N paths each, reflected off the
-    /// true geometry (16384 is a good start), instead of chaining them through the coarsest
-    /// senders as the paper does (0, the default). Not with --bounces-on-all-receivers.
+    /// true geometry and ending in T (1024 is a good start), instead of chaining them through
+    /// the coarsest senders as the paper does (0, the default). Not with
+    /// --bounces-on-all-receivers; shards leave the paths to `bake merge --scene`.
     #[arg(long, value_name = "N")]
     pub level0_paths: Option<u32>,
     /// Place the basis only; compute no transport operator.

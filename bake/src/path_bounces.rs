@@ -5,21 +5,30 @@
 //! spans pillars, arcades and both sides of thin walls, so the re-emitted light is smeared over
 //! surfaces that do not see it, and the coarsest receivers' later bounces come out too smooth.
 //!
-//! Here each coarsest receiver `i` traces paths instead: the first segment is the gather's
-//! (uniform hemisphere, weight `2/N`, direction `w_1`), later segments are cosine-sampled from
-//! each hit with the albedos' product as throughput and Russian roulette, and at every vertex
-//! `h_k` with `k >= 2` the direct light there, expanded in the sender functions of every sender
-//! level, adds
+//! Here each coarsest receiver `i` traces paths instead, off the true geometry: the first
+//! segment is the gather's (uniform hemisphere, weight `2/N`, direction `w_1`), later segments
+//! are cosine-sampled from each hit with the albedos' product `beta_m = rho(h_1) ... rho(h_m)`
+//! as throughput and Russian roulette. The last segment is not traced: at every vertex `h_m`
+//! (shading normal `n_m`) the single-bounce irradiance there is read from T itself, its
+//! hierarchical expansion over every receiver level (Eq. 6 with T's rows as coefficients), so
+//! vertex `m` adds bounce `m + 1`:
 //!
-//! `X_ij += 2/N * rho(h_1) ... rho(h_k) * w_1 * B_j(h_k)`
+//! `X_ij += 2/N * beta_m * w_1 * (n_m . sum_k B_k(h_m) T_kj)`
 //!
-//! (per colour channel), the estimator of the vector irradiance at `i` that the direct light
-//! of sender `j` delivers after two or more diffuse reflections. The bounce light is then
-//! reflected by the true geometry, and its source is the sender hierarchy's detail, not the
-//! level-0 functions' averages.
+//! per colour channel (`T_kj` holds a vector irradiance per channel). T gathered the direct
+//! light of every sender with many rays per receiver and kept its detail by refinement, so the
+//! paths carry only the geometry's variance: a path vertex that would have met a light's hot spot
+//! through one sender function (the estimator's noise when it deposits `B_j(h_{m+1})` at a traced
+//! last vertex) reads the hot spot's light as T's receivers there integrated it. A thousand
+//! paths per receiver leave the images' noise under the references'.
+//!
+//! The sum runs in two steps, so that no vertex touches T's rows: the paths accumulate, per
+//! receiver `k` that has a row, the weights `P_ik = sum 2/N beta_m (x) w_1 (x) n_m B_k(h_m)`
+//! (3 channels x 3 directions x 3 normal components); then `X_i = sum_k P_ik T_k`.
 
 use glam::Vec3;
 use mlt_format::links::LINK_DIM;
+use mlt_format::shepard::MIN_WEIGHT_SUM;
 use mlt_format::IndexedBasis;
 use mlt_scenes::sampling::{cosine_hemisphere, tangent_frame};
 use mlt_scenes::RayCaster;
@@ -27,58 +36,64 @@ use rayon::prelude::*;
 
 use crate::gather::{hemisphere_direction, Scratch};
 use crate::neumann::Rows;
+use crate::refine::{ReceiverLinks, NONE};
 use crate::rng::{Rng, Stream};
 use crate::sender_cells::SenderCells;
 
-/// The deepest vertex of a path when the bake's bounce count does not limit it (`--bounces
-/// auto`): with roulette a path's mean length is about `1 / (1 - rho)`, and at albedo 0.95 a
-/// path reaches vertex 64 with probability under 4 %.
+/// The deepest bounce when the bake's bounce count does not limit it (`--bounces auto`): with
+/// roulette a path's mean length is about `1 / (1 - rho)`, and at albedo 0.95 a path reaches
+/// vertex 63 with probability under 4 %.
 pub const MAX_VERTEX: u32 = 64;
 
-/// Roulette starts at this vertex (counting the first hit as 1).
+/// Roulette decides the step to this vertex and later ones (counting the first hit as 1).
 const ROULETTE_FROM: u32 = 3;
+
+/// A path's weights per receiver: channel `c`, first direction's component `d`, vertex
+/// normal's component `e` at `9 c + 3 d + e`.
+const WEIGHT_DIM: usize = 27;
 
 /// How the paths of [`level0_bounces`] are traced.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PathSettings {
-    /// Senders: the points of levels `0..sender_levels`.
+    /// Senders: the points of levels `0..sender_levels` (T's columns).
     pub sender_levels: usize,
     /// Paths per receiver (the first segments follow the gather's pattern).
     pub paths: u32,
-    /// The deepest vertex that deposits: bounce `b` of the series is vertex `b`, so a bake of
-    /// `B` bounces passes `B`, and `--bounces auto` passes [`MAX_VERTEX`].
+    /// The deepest bounce: bounce `b` of the series ends at vertex `b - 1`, so a bake of `B`
+    /// bounces passes `B`, and `--bounces auto` passes [`MAX_VERTEX`].
     pub max_vertex: u32,
     pub seed: u64,
 }
 
-/// Rows of bounces 2 to `max_vertex` for the receivers of level 0 (row `i` for receiver `i`;
-/// empty where `wanted` says no), over every sender that a path's vertex reaches, nothing
-/// truncated (as level 0's rows of T: the coarsest level has nothing coarser to represent a
-/// dropped link). Each row depends only on the receiver's index and the seed, so the result is
+/// Rows of bounces 2 to `max_vertex` for the receivers of level 0 (row `i` for receiver `i`),
+/// over every sender that T's rows at the paths' vertices
+/// reach, nothing truncated (as level 0's rows of T: the coarsest level has nothing coarser to
+/// represent a dropped link). `t` must hold the rows of every receiver (a whole bake's T, not
+/// a shard's). Each row depends only on the receiver's index, the seed and T, so the result is
 /// the same for any thread count.
 pub fn level0_bounces(
     ib: &IndexedBasis,
     caster: &dyn RayCaster,
     settings: PathSettings,
-    wanted: Option<&(dyn Fn(usize) -> bool + Sync)>,
+    t: &ReceiverLinks,
 ) -> Rows {
     let n0 = ib.basis.level_range(0).len();
     if settings.max_vertex < 2 {
         return vec![Vec::new(); n0];
     }
-    let cells = SenderCells::new(ib, settings.sender_levels);
+    // Every receiver level: the vertices evaluate T's expansion with the gather's grid.
+    let cells = SenderCells::new(ib, ib.levels());
     let senders = ib.basis.level_offsets[settings.sender_levels] as usize;
     let eps = caster.ray_epsilon();
     (0..n0)
         .into_par_iter()
         .map_init(
-            || Scratch::new(senders),
-            |scratch, i| {
-                if wanted.is_some_and(|w| !w(i)) {
-                    return Vec::new();
-                }
+            || (Scratch::new(senders), PathWeights::new(ib.basis.len())),
+            |(scratch, pw), i| {
+                pw.clear();
+                trace_receiver(ib, &cells, t, caster, i, settings, eps, pw);
                 scratch.clear();
-                trace_receiver(ib, &cells, caster, i, settings, eps, scratch);
+                apply(t, pw, scratch);
                 scratch.touched.sort_unstable();
                 scratch
                     .touched
@@ -91,37 +106,129 @@ pub fn level0_bounces(
         .collect()
 }
 
-/// Adds receiver `receiver`'s paths' deposits to `scratch` (module docs).
+/// One receiver's path weights `P_ik` (module docs), dense over the receivers, with the list
+/// of those touched (in first-touch order, which depends only on the paths).
+struct PathWeights {
+    acc: Vec<[f32; WEIGHT_DIM]>,
+    mark: Vec<bool>,
+    touched: Vec<u32>,
+    /// `(receiver, weight)` of one level at one vertex.
+    weights: Vec<(u32, f32)>,
+}
+
+impl PathWeights {
+    fn new(receivers: usize) -> PathWeights {
+        PathWeights {
+            acc: vec![[0.0; WEIGHT_DIM]; receivers],
+            mark: vec![false; receivers],
+            touched: Vec::new(),
+            weights: Vec::new(),
+        }
+    }
+
+    fn clear(&mut self) {
+        for &k in &self.touched {
+            self.acc[k as usize] = [0.0; WEIGHT_DIM];
+            self.mark[k as usize] = false;
+        }
+        self.touched.clear();
+    }
+
+    /// Adds `coef B_k(y, n)` for every receiver `k` with a row of T, over every level (Eq. 2's
+    /// normalised weights, as T's expansion at `y` evaluates them).
+    fn add_at_vertex(
+        &mut self,
+        cells: &SenderCells,
+        levels: usize,
+        t: &ReceiverLinks,
+        y: [f32; 3],
+        n: [f32; 3],
+        coef: &[f32; WEIGHT_DIM],
+    ) {
+        let Some(cell) = cells.cell_at(y) else {
+            return;
+        };
+        let mut weights = std::mem::take(&mut self.weights);
+        for l in 0..levels {
+            weights.clear();
+            let sum = cells.for_each_weight(cell, l, y, n, |k, w| weights.push((k as u32, w)));
+            if sum <= MIN_WEIGHT_SUM {
+                continue;
+            }
+            let inv = 1.0 / sum;
+            for &(k, w) in &weights {
+                let ku = k as usize;
+                if t.row_of[ku] == NONE {
+                    continue;
+                }
+                if !self.mark[ku] {
+                    self.mark[ku] = true;
+                    self.touched.push(k);
+                }
+                let b = w * inv;
+                for (a, c) in self.acc[ku].iter_mut().zip(coef) {
+                    *a += c * b;
+                }
+            }
+        }
+        self.weights = weights;
+    }
+}
+
+/// Adds receiver `receiver`'s paths' weights to `pw` (module docs).
+#[allow(clippy::too_many_arguments)]
 fn trace_receiver(
     ib: &IndexedBasis,
     cells: &SenderCells,
+    t: &ReceiverLinks,
     caster: &dyn RayCaster,
     receiver: usize,
     settings: PathSettings,
     eps: f32,
-    scratch: &mut Scratch,
+    pw: &mut PathWeights,
 ) {
     let PathSettings {
-        sender_levels,
         paths,
         max_vertex,
         seed,
+        ..
     } = settings;
     let b = &ib.basis;
+    let levels = ib.levels();
     let x = Vec3::from(b.positions[receiver]);
     let n = Vec3::from(b.normals[receiver]);
-    let (t, bt) = tangent_frame(n);
+    let (tx, ty) = tangent_frame(n);
     let mut rng = Rng::new(seed, Stream::Paths, receiver as u64);
     let rotation = rng.next_f32();
     let w_ray = 2.0 / paths as f32;
     let origin = x + n * eps;
     for k in 0..paths {
-        let dir1 = hemisphere_direction(k, paths, rotation, t, bt, n);
+        let dir1 = hemisphere_direction(k, paths, rotation, tx, ty, n);
         let Some(mut hit) = caster.intersect(origin, dir1, 0.0, f32::INFINITY) else {
             continue;
         };
         let mut beta = hit.albedo;
-        for vertex in 2..=max_vertex {
+        let mut vertex = 1;
+        loop {
+            // Bounce `vertex + 1` from T's expansion here.
+            let (y, ny) = (hit.position.to_array(), hit.shading_normal.to_array());
+            let coef: [f32; WEIGHT_DIM] = std::array::from_fn(|q| {
+                let (c, d, e) = (q / 9, (q / 3) % 3, q % 3);
+                w_ray * beta[c] * dir1[d] * ny[e]
+            });
+            pw.add_at_vertex(cells, levels, t, y, ny, &coef);
+            if vertex + 1 >= max_vertex {
+                break;
+            }
+            if vertex + 1 >= ROULETTE_FROM {
+                let q = beta[0].max(beta[1]).max(beta[2]).min(1.0);
+                if q.is_nan() || q <= 0.0 || rng.next_f32() >= q {
+                    break;
+                }
+                for bc in &mut beta {
+                    *bc /= q;
+                }
+            }
             let (ns, ng) = (hit.shading_normal, hit.geometric_normal);
             let dir = cosine_hemisphere(ns, rng.next_f32(), rng.next_f32());
             if dir.dot(ng) <= 0.0 {
@@ -134,19 +241,25 @@ fn trace_receiver(
             for (bc, r) in beta.iter_mut().zip(next.albedo) {
                 *bc *= r;
             }
-            let v: [f32; LINK_DIM] = std::array::from_fn(|d| beta[d / 3] * dir1[d % 3]);
-            let (y, ny) = (next.position.to_array(), next.shading_normal.to_array());
-            scratch.add_at_hit(cells, sender_levels, y, ny, &v, w_ray);
-            if vertex >= ROULETTE_FROM {
-                let q = beta[0].max(beta[1]).max(beta[2]).min(1.0);
-                if q.is_nan() || q <= 0.0 || rng.next_f32() >= q {
-                    break;
-                }
-                for bc in &mut beta {
-                    *bc /= q;
-                }
-            }
             hit = next;
+            vertex += 1;
+        }
+    }
+}
+
+/// `X_i = sum_k P_ik T_k` into `scratch` (module docs): per link `T_kj` and channel `c`,
+/// direction component `d`: `sum_e P_ik[c][d][e] T_kj[c][e]`.
+fn apply(t: &ReceiverLinks, pw: &PathWeights, scratch: &mut Scratch) {
+    for &k in &pw.touched {
+        let p = &pw.acc[k as usize];
+        let (senders, values) = t.row(k as usize);
+        for (&j, v) in senders.iter().zip(values) {
+            let out: [f32; LINK_DIM] = std::array::from_fn(|q| {
+                let (c, d) = (q / 3, q % 3);
+                let w = &p[9 * c + 3 * d..9 * c + 3 * d + 3];
+                w[0] * v[3 * c] + w[1] * v[3 * c + 1] + w[2] * v[3 * c + 2]
+            });
+            scratch.add(j, &out, 1.0);
         }
     }
 }
@@ -170,58 +283,96 @@ mod tests {
         out
     }
 
+    /// T of the closed sphere: every receiver's gather (Eq. 16) with many rays, so that its
+    /// vector irradiance under unit emission is `rho n_k` (the gather's test).
+    fn sphere_t(ib: &IndexedBasis, caster: &SphereCaster) -> ReceiverLinks {
+        let cells = SenderCells::new(ib, 1);
+        let mut t = ReceiverLinks::new(ib.basis.len());
+        for k in 0..ib.basis.len() {
+            let mut s = Scratch::new(ib.basis.len());
+            crate::gather::gather(
+                ib,
+                &cells,
+                caster,
+                k,
+                1,
+                4096,
+                5,
+                caster.ray_epsilon(),
+                &mut s,
+            );
+            s.touched.sort_unstable();
+            let links: Vec<_> = s.touched.iter().map(|&j| (j, *s.get(j))).collect();
+            t.push_row(k as u32, &links, 0, [0.0; LINK_DIM]);
+        }
+        t
+    }
+
     #[test]
     fn a_closed_sphere_gets_the_geometric_series_of_its_albedo() {
-        // In a closed sphere every path continues and the sender weights at a vertex sum to
-        // one, so under unit emission vertex k deposits rho^k along the normal, the first
-        // segments' cosines summing to exactly one (the gather's midpoint rule). Vertex 2 has
-        // no roulette: rho^2 to rounding; the whole series rho^2 / (1 - rho) up to the
-        // roulette's noise.
+        // In a closed sphere every path continues, and T's expansion at a vertex `h` under unit
+        // emission is `rho c(h)` along the normal, where `c(h) = sum_k B_k(h) n_h . n_k` (at
+        // most 1; the expansion of the receivers' normals) is the same for every channel and
+        // every bounce. So bounce 2 is `rho^2 c` per channel (the first segments' cosines sum
+        // to exactly one), and with every later bounce `rho^2 c / (1 - rho)`: the ratio of the
+        // two is the geometric series' whatever `c` is, up to the roulette's noise.
         let ib = sphere_basis();
         let rho = [0.2f32, 0.5, 0.8];
         let caster = SphereCaster::new(Vec3::ZERO, 2.0, rho);
+        let t = sphere_t(&ib, &caster);
         let settings = |max_vertex| PathSettings {
             sender_levels: 1,
-            paths: 16384,
+            paths: 4096,
             max_vertex,
             seed: 3,
         };
-        let second = level0_bounces(&ib, &caster, settings(2), None);
-        let all = level0_bounces(&ib, &caster, settings(MAX_VERTEX), None);
+        let second = level0_bounces(&ib, &caster, settings(2), &t);
+        let all = level0_bounces(&ib, &caster, settings(MAX_VERTEX), &t);
         assert_eq!(second.len(), 12);
+        let mut ratio_sum = [0.0f32; 3];
         for i in 0..12 {
             let (s, a) = (
                 along_normal(&ib, i, &second[i]),
                 along_normal(&ib, i, &all[i]),
             );
-            for c in 0..3 {
-                let r = rho[c];
+            let c = s[0] / (rho[0] * rho[0]);
+            assert!(c > 0.7 && c <= 1.0 + 1e-4, "{i}: c = {c}");
+            for ch in 0..3 {
+                let r = rho[ch];
                 assert!(
-                    (s[c] - r * r).abs() < 1e-3 * r * r,
-                    "{i} {c}: {} vs {}",
-                    s[c],
-                    r * r
+                    (s[ch] - c * r * r).abs() < 1e-4 * r * r,
+                    "{i} {ch}: {} vs {}",
+                    s[ch],
+                    c * r * r
                 );
-                let series = r * r / (1.0 - r);
+                // One receiver's 4,096 paths: the roulette's noise, a few percent at 0.8.
+                let series = 1.0 / (1.0 - r);
                 assert!(
-                    (a[c] - series).abs() < 0.03 * series,
-                    "{i} {c}: {} vs {series}",
-                    a[c]
+                    (a[ch] / s[ch] - series).abs() < 0.06 * series,
+                    "{i} {ch}: {} vs {series}",
+                    a[ch] / s[ch]
                 );
+                ratio_sum[ch] += a[ch] / s[ch];
             }
         }
-        // One vertex deposits nothing (that is T's first bounce); a mask leaves rows empty;
-        // the rows do not depend on the thread count.
-        assert!(level0_bounces(&ib, &caster, settings(1), None)
+        for (ch, r) in rho.iter().enumerate() {
+            let series = 1.0 / (1.0 - r);
+            let mean = ratio_sum[ch] / 12.0;
+            assert!(
+                (mean - series).abs() < 0.015 * series,
+                "{ch}: {mean} vs {series}"
+            );
+        }
+        // One bounce adds nothing (that is T itself); the rows do not depend on the thread
+        // count.
+        assert!(level0_bounces(&ib, &caster, settings(1), &t)
             .iter()
             .all(|r| r.is_empty()));
-        let even = level0_bounces(&ib, &caster, settings(2), Some(&|i| i % 2 == 0));
-        assert!((0..12).all(|i| even[i].is_empty() == (i % 2 == 1)));
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(1)
             .build()
             .unwrap();
-        let one = pool.install(|| level0_bounces(&ib, &caster, settings(MAX_VERTEX), None));
+        let one = pool.install(|| level0_bounces(&ib, &caster, settings(MAX_VERTEX), &t));
         assert_eq!(one, all);
     }
 }

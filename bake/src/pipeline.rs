@@ -23,9 +23,7 @@ use crate::placement::{find_coarse_radius, level_line, place, Coarse, LevelPlan}
 use crate::poisson::DartSettings;
 use crate::rng::mix64;
 use crate::shard::{needed, owners, shard_section};
-use crate::transport::{
-    check_params, compute_transport, refine_t, trace_level0_bounces, trim_levels, BouncePolicy,
-};
+use crate::transport::{check_params, compute_transport, refine_t, trim_levels, BouncePolicy};
 
 /// The tool name and version recorded in files.
 pub fn tool_version() -> String {
@@ -276,17 +274,9 @@ fn transport_stage(
     if let (false, Some((index, count))) = (opts.basis_only, opts.shard) {
         let owner = owners(&ib, count);
         let need = needed(&ib, &owner, index);
-        let (mut t, _, _) = refine_t(&ib, caster, &transport_params, light, Some(&need), obs)?;
-        let mine = |r: usize| owner[r] == index;
-        trace_level0_bounces(
-            &ib,
-            caster,
-            &transport_params,
-            policy,
-            Some(&mine),
-            &mut t,
-            obs,
-        );
+        // No traced level-0 bounces here: their paths end in the whole of T, so the merge
+        // traces them (`shard::merge`).
+        let (t, _, _) = refine_t(&ib, caster, &transport_params, light, Some(&need), obs)?;
         shard = Some(shard_section(
             &ib,
             &t,

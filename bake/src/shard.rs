@@ -11,16 +11,24 @@
 //! refinement queue of a level depends on the previous level's results. Each receiver's result
 //! depends only on its index, the seed and those coarser results, so the recomputed ones equal
 //! the single bake's and the owned rows of all shards add up to its T exactly.
+//!
+//! Where the bake traces the level-0 receivers' later bounces (`--level0-paths`), the paths
+//! end in T's expansion over every receiver, which no shard has: the merge traces them, with
+//! the scene (`bake merge --scene SCENE`), from the merged T. The shard section's fields for
+//! traced rows stay empty.
 
 use mlt_format::links::LINK_DIM;
 use mlt_format::shard::ShardSection;
 use mlt_format::{BakeContents, IndexedBasis};
+use mlt_scenes::RayCaster;
 
 use crate::error::BakeError;
 use crate::observer::Observer;
 use crate::pipeline::flat_section;
 use crate::refine::{ReceiverLinks, RefineStats};
-use crate::transport::{finish_transport, traced_vertex, trim_levels, BouncePolicy};
+use crate::transport::{
+    finish_transport, trace_level0_bounces, traced_vertex, trim_levels, BouncePolicy,
+};
 
 /// Spreads the bits of a 10-bit integer three apart.
 fn spread(mut x: u32) -> u32 {
@@ -120,19 +128,6 @@ pub fn shard_section(
         bounce_offsets: vec![0],
         ..Default::default()
     };
-    // The path-traced bounces of the level-0 receivers this shard owns (`bounce0` holds a row
-    // for every level-0 receiver, empty for the ones traced by other shards).
-    for (r, row) in t.bounce0.iter().enumerate() {
-        if owner[r] != index {
-            continue;
-        }
-        s.bounce_rows.push(r as u32);
-        for (j, v) in row {
-            s.bounce_senders.push(*j);
-            s.bounce_values.extend_from_slice(v);
-        }
-        s.bounce_offsets.push(s.bounce_senders.len() as u32);
-    }
     let mut owned: Vec<(u32, usize)> = t
         .rows
         .iter()
@@ -159,8 +154,14 @@ pub fn shard_section(
     s
 }
 
-/// Combines shard files into the contents a single bake gives.
-pub fn merge(shards: Vec<BakeContents>, obs: &dyn Observer) -> Result<BakeContents, BakeError> {
+/// Combines shard files into the contents a single bake gives. `caster` is the scene's, needed
+/// (and then required) only where the shards' bake traces the level-0 bounces
+/// (`--level0-paths`): those paths end in the whole of T, which no shard has.
+pub fn merge(
+    shards: Vec<BakeContents>,
+    caster: Option<&dyn RayCaster>,
+    obs: &dyn Observer,
+) -> Result<BakeContents, BakeError> {
     let bad = |m: String| Err(BakeError::Merge(m));
     let Some(first) = shards.first() else {
         return bad("no shards given".into());
@@ -241,28 +242,17 @@ pub fn merge(shards: Vec<BakeContents>, obs: &dyn Observer) -> Result<BakeConten
         tolerance: s0.bounce_tolerance,
         level0_paths: s0.level0_paths,
     };
+    // Traced level-0 bounces end in T's expansion over every receiver, which only the merge
+    // has: it traces them here, as the single bake does after its refinement.
     if traced_vertex(&s0.params, policy) > 0 {
-        let n0 = ib.basis.level_range(0).len();
-        t.bounce0 = vec![Vec::new(); n0];
-        let mut filled = vec![false; n0];
-        for c in &shards {
-            let Some(s) = &c.shard else { continue };
-            for (k, &r) in s.bounce_rows.iter().enumerate() {
-                let r = r as usize;
-                if r >= n0 || std::mem::replace(&mut filled[r], true) {
-                    return bad(format!(
-                        "shard {}/{} holds path-traced bounces of receiver {r}, which is not a level-0 receiver of its own",
-                        s.index, s.count
-                    ));
-                }
-                t.bounce0[r] = s.bounce_links(k).collect();
-            }
-        }
-        if let Some(r) = filled.iter().position(|f| !f) {
+        let Some(caster) = caster else {
             return bad(format!(
-                "no shard holds the path-traced bounces of level-0 receiver {r}"
+                "the shards' bake traces the level-0 bounces (--level0-paths {}), which the \
+                 merge computes from the whole of T: give the scene (bake merge --scene SCENE)",
+                s0.level0_paths
             ));
-        }
+        };
+        trace_level0_bounces(ib, caster, &s0.params, policy, &mut t, obs);
     }
     let out = finish_transport(ib, t, rstats, s0.params.clone(), policy, 0.0, obs)?;
     for w in &out.warnings {

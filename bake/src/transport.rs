@@ -224,7 +224,7 @@ pub fn compute_transport(
 ) -> Result<TransportOutput, BakeError> {
     check_params(&params, ib.levels() as u32)?;
     let (mut t, rstats, refine_s) = refine_t(ib, caster, &params, light, None, obs)?;
-    trace_level0_bounces(ib, caster, &params, policy, None, &mut t, obs);
+    trace_level0_bounces(ib, caster, &params, policy, &mut t, obs);
     let dropped = rstats.dropped_share();
     let mut out = finish_transport(ib, t, rstats, params, policy, refine_s, obs)?;
     out.refinement_drop = Some(dropped);
@@ -258,14 +258,14 @@ pub fn traced_vertex(params: &TransportParams, policy: BouncePolicy) -> u32 {
     }
 }
 
-/// Bounces 2 and later of the level-0 receivers that `wanted` names (all without it) by
-/// path tracing, into `t.bounce0`; nothing when the policy leaves them to the series.
+/// Bounces 2 and later of the level-0 receivers by path tracing, into `t.bounce0` (`t` holds
+/// every receiver's row of T: a whole bake's or a merge's); nothing when the policy leaves
+/// them to the series.
 pub fn trace_level0_bounces(
     ib: &IndexedBasis,
     caster: &dyn RayCaster,
     params: &TransportParams,
     policy: BouncePolicy,
-    wanted: Option<&(dyn Fn(usize) -> bool + Sync)>,
     t: &mut ReceiverLinks,
     obs: &dyn Observer,
 ) {
@@ -281,7 +281,7 @@ pub fn trace_level0_bounces(
         max_vertex,
         seed: params.seed,
     };
-    t.bounce0 = level0_bounces(ib, caster, settings, wanted);
+    t.bounce0 = level0_bounces(ib, caster, settings, t);
     let links: usize = t.bounce0.iter().map(|r| r.len()).sum();
     obs.done(
         "level-0 bounces by path tracing",

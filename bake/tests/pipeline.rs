@@ -195,9 +195,15 @@ fn outputs_are_byte_identical_across_runs_and_thread_counts() {
 }
 
 /// Bakes the small Cornell box with `extra` arguments as `n` shards (`{tag}s{i}of{n}.mlt` in
-/// `d`) and merges them, given last first (any order is allowed); returns the shard files in
-/// index order and the merged file.
-fn shards_merged(d: &Path, extra: &[&str], n: u32, tag: &str) -> (Vec<PathBuf>, PathBuf) {
+/// `d`) and merges them (with `merge_extra`), given last first (any order is allowed); returns
+/// the shard files in index order and the merged file.
+fn shards_merged(
+    d: &Path,
+    extra: &[&str],
+    merge_extra: &[&str],
+    n: u32,
+    tag: &str,
+) -> (Vec<PathBuf>, PathBuf) {
     let mut files = Vec::new();
     for i in 0..n {
         let f = d.join(format!("{tag}s{i}of{n}.mlt"));
@@ -213,15 +219,17 @@ fn shards_merged(d: &Path, extra: &[&str], n: u32, tag: &str) -> (Vec<PathBuf>, 
     run(bake()
         .arg("merge")
         .args(files.iter().rev())
+        .args(merge_extra)
         .arg("-o")
         .arg(&merged)
         .arg("-q"));
     (files, merged)
 }
 
-/// With `--level0-paths` each shard traces the paths of the level-0 receivers it owns, and the
-/// merge puts them in place of the series' level-0 rows: the single bake's file, byte for
-/// byte, and not the file without paths. A shard without paths does not merge with one with.
+/// `--level0-paths` changes the file and says so (`TBNC`, the statistics). Its paths end in
+/// the whole of T, so the merge traces them with the scene: the single bake's file, byte for
+/// byte; without the scene, or with another, the merge refuses. A shard without paths does not
+/// merge with one with.
 #[test]
 fn merged_shards_with_path_traced_bounces_equal_the_single_bake() {
     let d = temp("shards-paths");
@@ -264,11 +272,28 @@ fn merged_shards_with_path_traced_bounces_equal_the_single_bake() {
         .arg(&json));
     let stats: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
     assert_eq!(stats["bounce_method"]["level0_paths"], 64);
-    let (files, merged) = shards_merged(&d, &paths, 3, "paths");
+    let (files, merged) = shards_merged(&d, &paths, &["--scene", "builtin:cornell"], 3, "paths");
     assert!(
         std::fs::read(&merged).unwrap() == full,
         "the merge differs from the single bake"
     );
+    let merge_fails = |extra: &[&str], what: &str| {
+        let out = d.join("refused.mlt");
+        let r = bake()
+            .arg("merge")
+            .args(&files)
+            .args(extra)
+            .args(["-q", "-o"])
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert!(!r.status.success());
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert!(err.contains(what), "{err}");
+        assert!(!out.exists());
+    };
+    merge_fails(&[], "--scene");
+    merge_fails(&["--scene", "builtin:sphere"], "not the shards' scene");
     let other = d.join("chained1.mlt");
     run(bake()
         .arg("builtin:cornell")
@@ -286,11 +311,8 @@ fn merged_shards_with_path_traced_bounces_equal_the_single_bake() {
         .output()
         .unwrap();
     assert!(!r.status.success());
-    assert!(
-        String::from_utf8_lossy(&r.stderr).contains("--bounces-on-all-receivers"),
-        "{}",
-        String::from_utf8_lossy(&r.stderr)
-    );
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(err.contains("--bounces-on-all-receivers"), "{err}");
 }
 
 /// With `--bounces auto` the shards carry the policy and the merge chooses the same count.
@@ -305,7 +327,7 @@ fn merged_shards_with_auto_bounces_equal_the_single_bake() {
         .args(auto)
         .args(["-q", "-o"])
         .arg(&full));
-    let (files, merged) = shards_merged(&d, &auto, 2, "auto");
+    let (files, merged) = shards_merged(&d, &auto, &[], 2, "auto");
     assert!(
         std::fs::read(&merged).unwrap() == std::fs::read(&full).unwrap(),
         "the merge differs from the single bake"
@@ -359,7 +381,7 @@ fn merged_shards_equal_the_single_bake_for_one_two_and_three_shards() {
     let f = mlt_format::BakedFile::open(&full).unwrap();
     assert!(f.flat_section().unwrap().is_some(), "no FLT2 section");
     for n in 1..=3u32 {
-        let (_, merged) = shards_merged(&d, &[], n, "");
+        let (_, merged) = shards_merged(&d, &[], &[], n, "");
         assert!(
             std::fs::read(&merged).unwrap() == expected,
             "{n} shards: the merge differs from the single bake"

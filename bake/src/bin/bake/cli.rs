@@ -39,6 +39,11 @@ pub struct MergeArgs {
     pub shards: Vec<PathBuf>,
     #[arg(short, long)]
     pub output: PathBuf,
+    /// The shards' scene (as given to `bake`), needed where they were baked with
+    /// --level0-paths: the merge traces those paths, which end in the whole of T. Checked
+    /// against the scene the shards record.
+    #[arg(long, value_name = "SCENE")]
+    pub scene: Option<String>,
     /// zstd-compress the file's sections.
     #[arg(long)]
     pub compress: bool,

@@ -1,6 +1,6 @@
 //! `bake merge`: shard files into the file a single bake gives.
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use mlt_bake::report::{estimate_table, transport_table};
 use mlt_format::{BakedFile, WriteOptions};
 
@@ -11,6 +11,7 @@ pub fn run(args: &MergeArgs) -> Result<()> {
     let MergeArgs {
         shards,
         output,
+        scene,
         compress,
         quiet,
     } = args;
@@ -23,8 +24,29 @@ pub fn run(args: &MergeArgs) -> Result<()> {
                 .with_context(|| format!("reading {}", s.display()))?,
         );
     }
+    let caster = match (scene, contents.first()) {
+        (Some(spec), Some(first)) => {
+            let scene =
+                mlt_scenes::load_scene(spec).with_context(|| format!("loading scene {spec}"))?;
+            let recorded = &first.meta.scene;
+            if scene.content_hash != recorded.content_hash || scene.scale != recorded.scale {
+                bail!(
+                    "scene {spec} is not the shards' scene ({}, content hash {:016x} at scale {}; \
+                     {spec} has {:016x} at scale {})",
+                    recorded.source,
+                    recorded.content_hash,
+                    recorded.scale,
+                    scene.content_hash,
+                    scene.scale
+                );
+            }
+            Some(scene.build_caster())
+        }
+        _ => None,
+    };
     let reporter = Reporter::new(*quiet);
-    let merged = mlt_bake::shard::merge(contents, &reporter).context("merging")?;
+    let merged =
+        mlt_bake::shard::merge(contents, caster.as_deref(), &reporter).context("merging")?;
     let size = mlt_format::file::write(
         output,
         &merged,
