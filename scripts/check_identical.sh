@@ -39,7 +39,7 @@ echo "bake cornell basis-only $(hash "$work/cornell-basis.mlt")"
 for i in 0 1; do
     "$bake" builtin:cornell --shard "$i/2" -o "$work/shard$i.mlt" "${small[@]}" >/dev/null
 done
-"$bake" merge "$work/shard0.mlt" "$work/shard1.mlt" -o "$work/merged.mlt" -q >/dev/null
+"$bake" merge "$work/shard0.mlt" "$work/shard1.mlt" --scene builtin:cornell -o "$work/merged.mlt" -q >/dev/null
 echo "bake cornell merged-shards $(hash "$work/merged.mlt")"
 
 # Headless images of the Cornell bake: the window's default view and a moved camera and light.

@@ -57,7 +57,9 @@ pub const MAX_LEVELS: u32 = 16;
 #[serde(rename_all = "lowercase")]
 pub enum Preset {
     /// The series runs until the bounces left out carry under 1 % of the indirect light
-    /// (`--bounces auto`, capped at [`DEFAULT_AUTO_BOUNCE_CAP`]); the paper's other values.
+    /// (`--bounces auto`, capped at [`DEFAULT_AUTO_BOUNCE_CAP`]), and the coarsest
+    /// receivers' later bounces are traced as paths ([`DEFAULT_LEVEL0_PATHS`]); the paper's
+    /// other values.
     #[default]
     Converged,
     /// The paper's Table 1: 4 bounces, 6 levels, epsilon 0.025, 3 sender levels; level 0 of
@@ -66,7 +68,20 @@ pub enum Preset {
     Paper,
 }
 
+/// Paths per level-0 receiver that trace its later bounces under [`Preset::Converged`]
+/// (`path_bounces`): the paths' noise is under the references' at a thousand.
+pub const DEFAULT_LEVEL0_PATHS: u32 = 1024;
+
 impl Preset {
+    /// Paths per level-0 receiver for its later bounces when no layer sets `level0_paths`:
+    /// traced by default, chained through the coarsest senders (0) as the paper does.
+    pub fn level0_paths(self) -> u32 {
+        match self {
+            Preset::Converged => DEFAULT_LEVEL0_PATHS,
+            Preset::Paper => 0,
+        }
+    }
+
     /// The bounce choice of this preset when no layer makes one.
     pub fn bounce_choice(self) -> BounceChoice {
         match self {
@@ -143,9 +158,9 @@ pub struct BakeOptions {
     #[serde(default)]
     pub bounces_on_all_receivers: bool,
     /// Trace the coarsest receivers' bounces 2 and later as N paths each, reflected off the
-    /// true geometry and ending in T (1024 is a good start), instead of chaining them through
-    /// the coarsest senders as the paper does (0, the default). Not with
-    /// --bounces-on-all-receivers; shards leave the paths to `bake merge --scene`.
+    /// true geometry and ending in T [default: 1024; 0 with --preset paper, which chains them
+    /// through the coarsest senders as the paper does]. 0 with --bounces-on-all-receivers;
+    /// shards leave the paths to `bake merge --scene`.
     #[arg(long, value_name = "N")]
     pub level0_paths: Option<u32>,
     /// Place the basis only; compute no transport operator.
@@ -384,7 +399,13 @@ pub fn bounce_policy(opts: &BakeOptions) -> Result<BouncePolicy, BakeError> {
             "the bounce tolerance must be a fraction in (0, 1), got {tolerance}"
         )));
     }
-    let level0_paths = opts.level0_paths.unwrap_or(0);
+    // `--bounces-on-all-receivers` chains every receiver's bounces, so it takes the place of
+    // the preset's traced ones; an explicit count with it is a contradiction.
+    let level0_paths = match opts.level0_paths {
+        Some(n) => n,
+        None if opts.bounces_on_all_receivers => 0,
+        None => opts.preset.unwrap_or_default().level0_paths(),
+    };
     if level0_paths > 0 && opts.bounces_on_all_receivers {
         return Err(BakeError::InvalidParameter(format!(
             "--level0-paths {level0_paths} traces the coarsest receivers' bounces, which \
@@ -400,11 +421,13 @@ pub fn bounce_policy(opts: &BakeOptions) -> Result<BouncePolicy, BakeError> {
 
 /// How a bake's resolved parameters differ from [`Preset::Paper`]'s, one `name ours (paper:
 /// value)` per parameter; empty for a bake made at the paper's settings. `bounce_mode` is the
-/// transport report's (`fixed` or `auto`; `None` where the file has no report).
+/// transport report's (`fixed` or `auto`; `None` where the file has no report),
+/// `level0_paths` the paths per level-0 receiver of its later bounces (0 where chained).
 pub fn paper_preset_differences(
     basis: &BasisParams,
     transport: Option<&TransportParams>,
     bounce_mode: Option<&str>,
+    level0_paths: u32,
 ) -> Vec<String> {
     let mut out = Vec::new();
     let mut check = |name: &str, ours: String, paper: String| {
@@ -460,6 +483,11 @@ pub fn paper_preset_differences(
         t.bounces_on_all_receivers.to_string(),
         "false".into(),
     );
+    let chained = |n: u32| match n {
+        0 => "0 (chained)".to_string(),
+        n => n.to_string(),
+    };
+    check("level-0 paths", chained(level0_paths), chained(0));
     out
 }
 
@@ -564,12 +592,27 @@ mod tests {
         let paper = cli(&["--preset", "paper"]);
         let (p, _) = resolve(&paper).unwrap();
         let t = resolve_transport(&paper, &p);
-        assert!(paper_preset_differences(&p, Some(&t), Some("fixed")).is_empty());
-        let (pd, _) = resolve(&BakeOptions::default()).unwrap();
-        let td = resolve_transport(&BakeOptions::default(), &pd);
-        let d = paper_preset_differences(&pd, Some(&td), Some("auto"));
-        assert_eq!(d.len(), 2, "{d:?}");
+        let paths = |o: &BakeOptions| bounce_policy(o).unwrap().level0_paths;
+        assert_eq!(paths(&paper), 0);
+        assert!(paper_preset_differences(&p, Some(&t), Some("fixed"), 0).is_empty());
+        let default = BakeOptions::default();
+        let (pd, _) = resolve(&default).unwrap();
+        let td = resolve_transport(&default, &pd);
+        assert_eq!(paths(&default), DEFAULT_LEVEL0_PATHS);
+        let d = paper_preset_differences(&pd, Some(&td), Some("auto"), paths(&default));
+        assert_eq!(d.len(), 3, "{d:?}");
         assert!(d[0].starts_with("bounce mode auto") && d[1].starts_with("bounces 1000"));
+        assert_eq!(d[2], "level-0 paths 1024 (paper: 0 (chained))");
+        // An explicit count wins over the preset; the bounces of every receiver replace the
+        // preset's paths and contradict an explicit count.
+        assert_eq!(
+            paths(&cli(&["--preset", "paper", "--level0-paths", "64"])),
+            64
+        );
+        assert_eq!(paths(&cli(&["--bounces-on-all-receivers"])), 0);
+        assert!(
+            bounce_policy(&cli(&["--bounces-on-all-receivers", "--level0-paths", "8"])).is_err()
+        );
         let small = cli(&[
             "--preset",
             "paper",
@@ -580,10 +623,10 @@ mod tests {
         ]);
         let (ps, _) = resolve(&small).unwrap();
         let ts = resolve_transport(&small, &ps);
-        let d = paper_preset_differences(&ps, Some(&ts), None);
+        let d = paper_preset_differences(&ps, Some(&ts), None, 0);
         assert_eq!(d.len(), 2, "{d:?}");
         assert!(d[0].starts_with("levels 4") && d[1].starts_with("gather rays 8"));
-        assert_eq!(paper_preset_differences(&p, None, None).len(), 1);
+        assert_eq!(paper_preset_differences(&p, None, None, 0).len(), 1);
     }
 
     #[test]

@@ -18,7 +18,7 @@ use crate::drop_estimate::{estimate, representative_emission};
 use crate::error::BakeError;
 use crate::neumann::{series, spectral_radius, BounceReceivers, Row, Rows, SeriesReport};
 use crate::observer::Observer;
-use crate::path_bounces::{level0_bounces, PathSettings, MAX_VERTEX};
+use crate::path_bounces::{level0_bounces, PathSettings};
 use crate::refine::{refine, ReceiverLinks, RefineSettings, RefineStats};
 
 /// The result, with what the user should be told.
@@ -245,14 +245,13 @@ pub fn refinement_warning(drop: &RefinementDrop, epsilon: f32, tolerance: f64) -
     })
 }
 
-/// The deepest vertex of the level-0 receivers' paths (`path_bounces`) under `params` and
-/// `policy`, or 0 when the series chains their bounces: the fixed bounce count, or
-/// [`MAX_VERTEX`] with `--bounces auto`.
+/// The deepest bounce of the level-0 receivers' paths (`path_bounces`) under `params` and
+/// `policy`, or 0 when the series chains their bounces: the fixed bounce count, or with
+/// `--bounces auto` its cap (the paths' roulette ends them long before it unless the scene is
+/// stiff, where they need that depth as the series does).
 pub fn traced_vertex(params: &TransportParams, policy: BouncePolicy) -> u32 {
     if policy.level0_paths == 0 || params.bounces_on_all_receivers {
         0
-    } else if policy.auto {
-        MAX_VERTEX
     } else {
         params.bounces
     }

@@ -245,10 +245,13 @@ fn non_finite_numbers_and_bad_bounce_counts_on_the_command_line_are_named() {
         assert!(err.contains(needle), "{args:?}: {err}");
         assert!(!out.exists(), "{args:?} wrote a file");
     }
-    // `auto` and `auto:N` parse, and the file records the choice.
+    // `auto` and `auto:N` parse, and the file records the choice (of the series: the chained
+    // level-0 bounces, which the cap stops; traced ones would go deeper).
     let r = bake()
         .args([
             "builtin:sphere?albedo=0.8",
+            "--level0-paths",
+            "0",
             "--receiver-levels",
             "2",
             "--coarse-count",

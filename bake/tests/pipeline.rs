@@ -195,15 +195,10 @@ fn outputs_are_byte_identical_across_runs_and_thread_counts() {
 }
 
 /// Bakes the small Cornell box with `extra` arguments as `n` shards (`{tag}s{i}of{n}.mlt` in
-/// `d`) and merges them (with `merge_extra`), given last first (any order is allowed); returns
-/// the shard files in index order and the merged file.
-fn shards_merged(
-    d: &Path,
-    extra: &[&str],
-    merge_extra: &[&str],
-    n: u32,
-    tag: &str,
-) -> (Vec<PathBuf>, PathBuf) {
+/// `d`) and merges them with the scene (the default bake's traced level-0 bounces need it),
+/// given last first (any order is allowed); returns the shard files in index order and the
+/// merged file.
+fn shards_merged(d: &Path, extra: &[&str], n: u32, tag: &str) -> (Vec<PathBuf>, PathBuf) {
     let mut files = Vec::new();
     for i in 0..n {
         let f = d.join(format!("{tag}s{i}of{n}.mlt"));
@@ -219,7 +214,7 @@ fn shards_merged(
     run(bake()
         .arg("merge")
         .args(files.iter().rev())
-        .args(merge_extra)
+        .args(["--scene", "builtin:cornell"])
         .arg("-o")
         .arg(&merged)
         .arg("-q"));
@@ -245,8 +240,22 @@ fn merged_shards_with_path_traced_bounces_equal_the_single_bake() {
         std::fs::read(&f).unwrap()
     };
     let full = single(&paths, "full.mlt");
-    let chained = single(&[], "chained.mlt");
+    let chained = single(&["--level0-paths", "0"], "chained.mlt");
     assert!(full != chained, "--level0-paths changed nothing");
+    // The default traces them too, and the paper's preset chains them.
+    let method_of = |extra: &[&str], name: &str| {
+        single(extra, name);
+        mlt_format::BakedFile::open(&d.join(name))
+            .unwrap()
+            .bounce_method()
+            .unwrap()
+            .map(|b| b.level0_paths)
+    };
+    assert_eq!(
+        method_of(&[], "default.mlt"),
+        Some(mlt_bake::params::DEFAULT_LEVEL0_PATHS)
+    );
+    assert_eq!(method_of(&["--preset", "paper"], "paper.mlt"), None);
     // The file says how its level-0 bounces were computed (`TBNC`), a chained one does not.
     let method = |name: &str| {
         mlt_format::BakedFile::open(&d.join(name))
@@ -257,7 +266,7 @@ fn merged_shards_with_path_traced_bounces_equal_the_single_bake() {
     let traced = method("full.mlt").expect("no TBNC section");
     assert_eq!(
         (traced.level0_paths, traced.max_vertex),
-        (64, mlt_bake::path_bounces::MAX_VERTEX)
+        (64, mlt_bake::params::DEFAULT_AUTO_BOUNCE_CAP)
     );
     assert_eq!(method("chained.mlt"), None);
     // So do the bake's statistics.
@@ -272,7 +281,7 @@ fn merged_shards_with_path_traced_bounces_equal_the_single_bake() {
         .arg(&json));
     let stats: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
     assert_eq!(stats["bounce_method"]["level0_paths"], 64);
-    let (files, merged) = shards_merged(&d, &paths, &["--scene", "builtin:cornell"], 3, "paths");
+    let (files, merged) = shards_merged(&d, &paths, 3, "paths");
     assert!(
         std::fs::read(&merged).unwrap() == full,
         "the merge differs from the single bake"
@@ -298,7 +307,7 @@ fn merged_shards_with_path_traced_bounces_equal_the_single_bake() {
     run(bake()
         .arg("builtin:cornell")
         .args(SMALL)
-        .args(["--shard", "1/3", "-q", "-o"])
+        .args(["--level0-paths", "0", "--shard", "1/3", "-q", "-o"])
         .arg(&other));
     merge_refused_as_another_bake(&d, &[&files[0], &other, &files[2]]);
     // The option and the bounces of every receiver exclude each other.
@@ -327,7 +336,7 @@ fn merged_shards_with_auto_bounces_equal_the_single_bake() {
         .args(auto)
         .args(["-q", "-o"])
         .arg(&full));
-    let (files, merged) = shards_merged(&d, &auto, &[], 2, "auto");
+    let (files, merged) = shards_merged(&d, &auto, 2, "auto");
     assert!(
         std::fs::read(&merged).unwrap() == std::fs::read(&full).unwrap(),
         "the merge differs from the single bake"
@@ -381,7 +390,7 @@ fn merged_shards_equal_the_single_bake_for_one_two_and_three_shards() {
     let f = mlt_format::BakedFile::open(&full).unwrap();
     assert!(f.flat_section().unwrap().is_some(), "no FLT2 section");
     for n in 1..=3u32 {
-        let (_, merged) = shards_merged(&d, &[], &[], n, "");
+        let (_, merged) = shards_merged(&d, &[], n, "");
         assert!(
             std::fs::read(&merged).unwrap() == expected,
             "{n} shards: the merge differs from the single bake"

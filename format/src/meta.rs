@@ -308,7 +308,8 @@ data! {
     pub struct BounceMethod {
         /// Paths per level-0 receiver.
         pub level0_paths: u32,
-        /// The deepest path vertex that deposits light (bounce `b` is vertex `b`).
+        /// The deepest bounce the paths compute (bounce `b` reads T at a path's vertex
+        /// `b - 1`).
         pub max_vertex: u32,
     }
 }

@@ -443,7 +443,8 @@ fn level_two_keeps_sub_epsilon_links_at_contacts_only() {
 #[test]
 fn a_smaller_bounce_epsilon_keeps_the_energy_that_truncation_drops() {
     // Two sender levels: the links from coarsest senders to coarsest receivers are never
-    // truncated (the base of the hierarchy), the finer senders' are.
+    // truncated (the base of the hierarchy), the finer senders' are. The level-0 bounces are
+    // chained: traced ones replace the truncated rows with paths.
     let bake = |bounce_epsilon: Option<f32>| {
         let out = bake_with(
             "builtin:cornell",
@@ -452,6 +453,7 @@ fn a_smaller_bounce_epsilon_keeps_the_energy_that_truncation_drops() {
                 coarse_count: Some(60),
                 sender_levels: Some(2),
                 gather_rays: Some(64),
+                level0_paths: Some(0),
                 bounce_epsilon,
                 ..Default::default()
             },

@@ -51,7 +51,7 @@ fn small() -> BakeOptions {
 /// Per probe: direct, direct from the basis, indirect (RGB each).
 type ProbeValues = Vec<[[f32; 3]; 3]>;
 
-fn cornell_at_scales(scales: &[f32]) -> Vec<(f32, Vec<u64>, ProbeValues)> {
+fn cornell_at_scales(scales: &[f32], opts: &BakeOptions) -> Vec<(f32, Vec<u64>, ProbeValues)> {
     // Probes on the floor and back wall of the Cornell box (coordinates at scale 1, metres).
     let unit: Vec<(Vec3, Vec3)> = (0..12)
         .map(|k| {
@@ -67,7 +67,7 @@ fn cornell_at_scales(scales: &[f32]) -> Vec<(f32, Vec<u64>, ProbeValues)> {
     let mut results = Vec::new();
     for &s in scales {
         let spec = format!("builtin:cornell?scale={s}");
-        let contents = bake(&spec, &small());
+        let contents = bake(&spec, opts);
         let probes: Vec<Probe> = unit
             .iter()
             .map(|(x, n)| Probe {
@@ -94,7 +94,7 @@ fn cornell_at_scales(scales: &[f32]) -> Vec<(f32, Vec<u64>, ProbeValues)> {
 fn scaling_by_powers_of_two_changes_nothing() {
     // 2^-13 ~ 1.2e-4 and 2^13 ~ 8.2e3 scale every coordinate exactly, so a bake with no
     // absolute distance anywhere gives the same basis and the same light.
-    let results = cornell_at_scales(&[2f32.powi(-13), 1.0, 2f32.powi(13)]);
+    let results = cornell_at_scales(&[2f32.powi(-13), 1.0, 2f32.powi(13)], &small());
     let (_, ref_counts, ref_v) = &results[1];
     for (s, counts, v) in &results {
         assert_eq!(counts, ref_counts, "scale {s}");
@@ -113,7 +113,14 @@ fn scaling_by_powers_of_two_changes_nothing() {
 fn the_same_scene_at_scale_1e_minus_4_and_1e4_gives_the_same_light() {
     // Decimal scales round differently, so darts may fall differently: the exact direct
     // light agrees closely, the basis' reconstructions within their approximation error.
-    let results = cornell_at_scales(&[1e-4, 1.0, 1e4]);
+    // The level-0 bounces chained: traced ones vary more with where the darts fell at these
+    // coarse settings (indirect means 4.05-4.54 over the three scales, against 4.10-4.31
+    // chained); their exact scale invariance is the power-of-two test's, which traces them.
+    let chained = BakeOptions {
+        level0_paths: Some(0),
+        ..small()
+    };
+    let results = cornell_at_scales(&[1e-4, 1.0, 1e4], &chained);
     let (_, ref_counts, ref_v) = &results[1];
     let mean = |v: &[[[f32; 3]; 3]], kind: usize| {
         v.iter()

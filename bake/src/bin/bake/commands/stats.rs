@@ -7,7 +7,7 @@ use std::path::Path;
 use anyhow::{Context, Result};
 use mlt_bake::params::paper_preset_differences;
 use mlt_bake::table1::{compare_json, compare_text, our_row, paper_row, Table1Row};
-use mlt_format::meta::{TransportMeta, TransportReport};
+use mlt_format::meta::{BounceMethod, TransportMeta, TransportReport};
 use mlt_format::{BakedFile, Meta};
 
 use crate::cli::StatsArgs;
@@ -71,9 +71,12 @@ fn load_row(path: &Path) -> Result<(Table1Row, Vec<String>)> {
     let report = f
         .transport_report()
         .with_context(|| format!("reading {}", path.display()))?;
+    let bounces = f
+        .bounce_method()
+        .with_context(|| format!("reading {}", path.display()))?;
     let mut row = our_row(&meta, transport.as_ref(), Some(f.file_len()), None, None);
     row.title = path.display().to_string();
-    Ok((row, differences(&meta, &transport, &report)))
+    Ok((row, differences(&meta, &transport, &report, bounces)))
 }
 
 /// [`paper_preset_differences`] of a bake's metadata.
@@ -81,11 +84,13 @@ fn differences(
     meta: &Meta,
     transport: &Option<TransportMeta>,
     report: &Option<TransportReport>,
+    bounces: Option<BounceMethod>,
 ) -> Vec<String> {
     paper_preset_differences(
         &meta.params,
         transport.as_ref().map(|t| &t.params),
         report.as_ref().map(|r| r.bounce_mode.as_str()),
+        bounces.map_or(0, |b| b.level0_paths),
     )
 }
 
@@ -111,6 +116,8 @@ fn load_json_row(path: &Path) -> Result<(Table1Row, Vec<String>)> {
         timings.as_ref(),
         None,
     );
+    let bounces: Option<BounceMethod> =
+        serde_json::from_value(v["bounce_method"].clone()).unwrap_or(None);
     row.title = path.display().to_string();
-    Ok((row, differences(&meta, &transport, &report)))
+    Ok((row, differences(&meta, &transport, &report, bounces)))
 }
