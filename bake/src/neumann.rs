@@ -15,11 +15,11 @@
 //! geometry the coarsest level alone reconstructs these bounces poorly (about 10 % low on a
 //! closed sphere of 24 level-0 points); [`BounceReceivers::All`] applies every refined row of T
 //! instead (`X_b = T Y_{b-1}`: finer rows of T are Eq. 17 differences, so their products are
-//! the finer coefficients of bounce `b`), at the cost of more products. With `--level0-paths`
-//! the bake then replaces the level-0 rows of bounces 2 and later by path-traced ones
-//! (`crate::path_bounces`), which reflect the bounce light off the true geometry instead of the
-//! level-0 functions; the series still gives the spectral radius, the bounce count and the
-//! per-bounce statistics. The series converges
+//! the finer coefficients of bounce `b`), at the cost of more products. By default (`bake
+//! --level0-paths N`, N > 0) the bake then replaces the level-0 rows of bounces 2 and later by
+//! path-traced ones (`crate::path_bounces`), which reflect the bounce light off the true
+//! geometry instead of the level-0 functions; the series still gives the spectral radius, the
+//! bounce count and the per-bounce statistics, and is what the paper preset keeps. The series converges
 //! when the spectral radius of `M[j][i] = n_j . K[j][i]` is below one; it is estimated by power
 //! iteration first, and a scene at or above one is refused.
 

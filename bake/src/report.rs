@@ -366,7 +366,7 @@ pub fn info_text(info: &FileInfo) -> String {
     if let Some(b) = &info.bounce_method {
         let _ = writeln!(
             o,
-            "later bounces level 0's traced as paths: {} per receiver, vertices 2 to {} (--level0-paths)",
+            "level 0's later bounces traced as paths ending in T: {} per receiver, bounces 2 to {} (--level0-paths)",
             b.level0_paths, b.max_vertex
         );
     }

@@ -286,7 +286,7 @@ pub fn trace_level0_bounces(
         "level-0 bounces by path tracing",
         t0.elapsed().as_secs_f64(),
         &format!(
-            "{} paths per receiver, vertices 2 to {max_vertex}, {links} links",
+            "{} paths per receiver ending in T, bounces 2 to {max_vertex}, {links} links",
             policy.level0_paths
         ),
     );

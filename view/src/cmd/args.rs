@@ -96,9 +96,10 @@ pub struct RelightArgs {
     /// `i = S (e + P-dagger (n . R i) - y(i))`). 0 turns it off; `--no-fine-bounces` turns
     /// it off too (the paper's relighting), and files whose bounces ran on every receiver, or
     /// with one bounce, never get it. Each step costs about one `S e`; a second moves the
-    /// mean by under 1 %. At most 16. Default 1, and 0 for a file whose level-0 bounces were
-    /// traced as paths (`bake --level0-paths`): its level-0 rows hold every bounce already,
-    /// and re-emitting through them would count the later bounces twice.
+    /// mean by under 1 %. At most 16. Default 0 for a file whose level-0 bounces were traced
+    /// as paths (the default bake; `bake --level0-paths`): its level-0 rows hold every bounce
+    /// already, and re-emitting through them would count the later bounces twice; 1 for a
+    /// file that chains them (`bake --preset paper`, `--level0-paths 0`).
     #[arg(long, value_name = "STEPS", value_parser = clap::value_parser!(u32).range(0..=16))]
     pub bounce_feedback: Option<u32>,
     /// Lagged bounce-light feedback, for a moving light: each frame applies the correction
