@@ -69,11 +69,11 @@ pub struct PathSettings {
 }
 
 /// Rows of bounces 2 to `max_vertex` for the receivers of level 0 (row `i` for receiver `i`),
-/// over every sender that T's rows at the paths' vertices
-/// reach, nothing truncated (as level 0's rows of T: the coarsest level has nothing coarser to
-/// represent a dropped link). `t` must hold the rows of every receiver (a whole bake's T, not
-/// a shard's). Each row depends only on the receiver's index, the seed and T, so the result is
-/// the same for any thread count.
+/// over every sender that T's rows at the paths' vertices reach, nothing truncated (as level
+/// 0's rows of T: the coarsest level has nothing coarser to represent a dropped link). `t`
+/// must hold the rows of every receiver (a whole bake's T, not a shard's). Each row depends
+/// only on the receiver's index, the seed and T, so the result is the same for any thread
+/// count. Each thread holds 108 bytes per point of the basis for the paths' weights.
 pub fn level0_bounces(
     ib: &IndexedBasis,
     caster: &dyn RayCaster,
