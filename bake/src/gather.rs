@@ -14,7 +14,6 @@
 
 use glam::Vec3;
 use mlt_format::links::LINK_DIM;
-use mlt_format::shepard::MIN_WEIGHT_SUM;
 use mlt_format::IndexedBasis;
 use mlt_scenes::RayCaster;
 
@@ -62,9 +61,8 @@ impl Scratch {
     }
 
     /// Adds `scale * v * B_j(y, n)` for every sender `j` of levels `0..levels` with weight at
-    /// the surface point `(y, n)`, each level's weights normalised over that level (Eq. 2):
-    /// `v` spread over the sender hierarchy's expansion at `y`. Returns the number of levels
-    /// with no support there.
+    /// the surface point `(y, n)` ([`SenderCells::for_each_basis_value`]): `v` spread over the
+    /// sender hierarchy's expansion at `y`. Returns the number of levels with no support there.
     #[inline]
     pub fn add_at_hit(
         &mut self,
@@ -75,23 +73,9 @@ impl Scratch {
         v: &[f32; LINK_DIM],
         scale: f32,
     ) -> u64 {
-        let Some(cell) = cells.cell_at(y) else {
-            return levels as u64;
-        };
-        let mut unsupported = 0;
         let mut weights = std::mem::take(&mut self.weights);
-        for m in 0..levels {
-            weights.clear();
-            let sum = cells.for_each_weight(cell, m, y, n, |j, w| weights.push((j as u32, w)));
-            if sum > MIN_WEIGHT_SUM {
-                let inv = scale / sum;
-                for &(j, w) in &weights {
-                    self.add(j, v, w * inv);
-                }
-            } else {
-                unsupported += 1;
-            }
-        }
+        let unsupported =
+            cells.for_each_basis_value(levels, y, n, scale, &mut weights, |j, b| self.add(j, v, b));
         self.weights = weights;
         unsupported
     }

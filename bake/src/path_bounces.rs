@@ -28,7 +28,6 @@
 
 use glam::Vec3;
 use mlt_format::links::LINK_DIM;
-use mlt_format::shepard::MIN_WEIGHT_SUM;
 use mlt_format::IndexedBasis;
 use mlt_scenes::sampling::{cosine_hemisphere, tangent_frame};
 use mlt_scenes::RayCaster;
@@ -148,32 +147,20 @@ impl PathWeights {
         n: [f32; 3],
         coef: &[f32; WEIGHT_DIM],
     ) {
-        let Some(cell) = cells.cell_at(y) else {
-            return;
-        };
         let mut weights = std::mem::take(&mut self.weights);
-        for l in 0..levels {
-            weights.clear();
-            let sum = cells.for_each_weight(cell, l, y, n, |k, w| weights.push((k as u32, w)));
-            if sum <= MIN_WEIGHT_SUM {
-                continue;
+        cells.for_each_basis_value(levels, y, n, 1.0, &mut weights, |k, b| {
+            let ku = k as usize;
+            if t.row_of[ku] == NONE {
+                return;
             }
-            let inv = 1.0 / sum;
-            for &(k, w) in &weights {
-                let ku = k as usize;
-                if t.row_of[ku] == NONE {
-                    continue;
-                }
-                if !self.mark[ku] {
-                    self.mark[ku] = true;
-                    self.touched.push(k);
-                }
-                let b = w * inv;
-                for (a, c) in self.acc[ku].iter_mut().zip(coef) {
-                    *a += c * b;
-                }
+            if !self.mark[ku] {
+                self.mark[ku] = true;
+                self.touched.push(k);
             }
-        }
+            for (a, c) in self.acc[ku].iter_mut().zip(coef) {
+                *a += c * b;
+            }
+        });
         self.weights = weights;
     }
 }

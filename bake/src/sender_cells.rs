@@ -18,6 +18,7 @@ use std::sync::OnceLock;
 
 use mlt_format::kernel::{kernel, F_SQUASH};
 use mlt_format::rtree::LEAF_SIZE;
+use mlt_format::shepard::MIN_WEIGHT_SUM;
 use mlt_format::{Basis, IndexedBasis, RTree};
 
 // Item masks of a leaf are 32 bits wide.
@@ -250,6 +251,39 @@ impl<'a> SenderCells<'a> {
             }
         }
         sum
+    }
+
+    /// Calls `f(j, scale * B_j(y, n))` for every basis function of levels `0..levels` with a
+    /// positive weight at `(y, n)`, each level's weights normalised over that level (Eq. 2):
+    /// the expansion of a hit's value in the hierarchy. `buf` holds one level's weights
+    /// between the two passes. Returns how many of the levels have no support at `y`.
+    #[inline]
+    pub fn for_each_basis_value(
+        &self,
+        levels: usize,
+        y: [f32; 3],
+        n: [f32; 3],
+        scale: f32,
+        buf: &mut Vec<(u32, f32)>,
+        mut f: impl FnMut(u32, f32),
+    ) -> u64 {
+        let Some(cell) = self.cell_at(y) else {
+            return levels as u64;
+        };
+        let mut unsupported = 0;
+        for l in 0..levels {
+            buf.clear();
+            let sum = self.for_each_weight(cell, l, y, n, |j, w| buf.push((j as u32, w)));
+            if sum > MIN_WEIGHT_SUM {
+                let inv = scale / sum;
+                for &(j, w) in buf.iter() {
+                    f(j, w * inv);
+                }
+            } else {
+                unsupported += 1;
+            }
+        }
+        unsupported
     }
 
     fn build_cell(&self, idx: [usize; 3]) -> Box<[u64]> {

@@ -35,9 +35,11 @@ pub struct ShardSection {
     pub row_gathered: Vec<f32>,
     pub emission: Vec<f32>,
     /// Paths per level-0 receiver for its bounces 2 and later (format 1.7 and later; 0: the
-    /// series chains them), and the rows they gave for the level-0 receivers this shard owns:
-    /// `bounce_rows` ascending, `bounce_offsets` (`bounce_rows.len() + 1`) into
-    /// `bounce_senders`, `LINK_DIM` floats per link in `bounce_values`.
+    /// series chains them), and room for the rows they give for the level-0 receivers this
+    /// shard owns: `bounce_rows` ascending, `bounce_offsets` (`bounce_rows.len() + 1`) into
+    /// `bounce_senders`, `LINK_DIM` floats per link in `bounce_values`. The bake writes them
+    /// empty (the paths need the whole of T, so `bake merge --scene` traces them); the merge
+    /// ignores rows that a shard of an earlier build carried.
     pub level0_paths: u32,
     pub bounce_rows: Vec<u32>,
     pub bounce_offsets: Vec<u32>,
@@ -50,17 +52,6 @@ impl ShardSection {
     /// [`ShardSection::validate`].
     pub fn row_links(&self, k: usize) -> impl Iterator<Item = (u32, [f32; LINK_DIM])> + '_ {
         links_at(&self.offsets, &self.senders, &self.values, k)
-    }
-
-    /// The links of the `k`-th path-traced row held (level-0 receiver `bounce_rows[k]`); valid
-    /// after [`ShardSection::validate`].
-    pub fn bounce_links(&self, k: usize) -> impl Iterator<Item = (u32, [f32; LINK_DIM])> + '_ {
-        links_at(
-            &self.bounce_offsets,
-            &self.bounce_senders,
-            &self.bounce_values,
-            k,
-        )
     }
 
     /// Checks the invariants a merge relies on against a basis of `points` points and
