@@ -60,6 +60,22 @@
 //! its budget darkens the contact where the true light is dark (checked against the
 //! path-traced reference, not against the neighbourhood). Finer levels keep Fig. 5 alone.
 //!
+//! **Levels 2 and 3 keep their links to finer senders by a budget**
+//! ([`keeps_finer_budget`]). A link to a finer sender is how a receiver sees the emission's
+//! detail there (the pull-push difference of a lit patch, the edge of a shadow); a finer
+//! receiver's is a difference from its parents' view (Eq. 17). Each is far below epsilon, so
+//! Fig. 5 drops them one by one and the detail reaches these receivers only through level 0's
+//! wide functions: the first bounce came out too smooth, its brightest parts (the walls beside a
+//! lit floor) too dark and its darkest too bright, and untextured Sponza's image 7 % dark
+//! where the receiver basis itself, given the true first bounce, loses nothing. Of the finer
+//! links Fig. 5 drops, a level-2 or level-3 receiver keeps all but the smallest whose norms sum
+//! to at most [`FINER_BUDGET_FACTOR`] times epsilon. Most such links rest on one or two of the
+//! gather's hits, so these levels gather with [`FINER_GATHER_FACTOR`] times the rays (with the
+//! bake's rays alone, the kept links' noise times a near light's detail coefficients showed as
+//! blotches on the Cornell box's walls). The budget links queue no children. At level 1 the
+//! same rule gained 3 % per pixel on untextured Sponza's first bounce for 5x that level's
+//! links; levels 4 and finer, with 3-10x level 3's receivers, were not tried.
+//!
 //! Refinement also sums, under uniform emission at the coarsest senders, the single-bounce light
 //! of the links it drops against that of the links it keeps ([`RefineStats::dropped_share`]),
 //! and per row the same under the file's light (`drop_estimate`, stored in the file).
@@ -91,6 +107,23 @@ pub const BUDGET_GATHER_FACTOR: u32 = 4;
 /// disk radius is at a contact and keeps Fig. 5 alone (module docs).
 pub const CONTACT_FRACTION: f32 = 0.05;
 
+/// The budget of a level-2 or level-3 receiver's dropped links to finer senders, in units of
+/// epsilon (module docs). Each link is a sample of the emission's detail that the gather's rays
+/// hit once or twice, so the budget is large: it drops the many smallest, keeps the largest.
+pub const FINER_BUDGET_FACTOR: f32 = 40.0;
+
+/// Gather rays of a level-2 or level-3 receiver as a multiple of the bake's `gather_rays`
+/// (module docs): the links its finer-sender budget keeps rest on few hits each, and with the
+/// bake's rays alone their noise, times a near light's large detail coefficients, shows as
+/// blotches.
+pub const FINER_GATHER_FACTOR: u32 = 4;
+
+/// Whether a receiver of `level` keeps its sub-epsilon links to finer senders by a budget of
+/// [`FINER_BUDGET_FACTOR`] epsilon (module docs): levels 2 and 3.
+pub fn keeps_finer_budget(level: usize) -> bool {
+    matches!(level, 2 | 3)
+}
+
 /// Whether a receiver of `level` keeps its sub-epsilon links to coarsest senders by a budget
 /// (module docs): at level 1 away from contacts, at level 2 at contacts.
 pub fn keeps_budget(level: usize, contact: bool) -> bool {
@@ -107,6 +140,8 @@ pub fn gather_rays_at(level: usize, gather_rays: u32) -> u32 {
         gather_rays.saturating_mul(COARSE_GATHER_FACTOR)
     } else if level == 1 {
         gather_rays.saturating_mul(BUDGET_GATHER_FACTOR)
+    } else if keeps_finer_budget(level) {
+        gather_rays.saturating_mul(FINER_GATHER_FACTOR)
     } else {
         gather_rays
     }
@@ -435,13 +470,21 @@ fn process(
             lose(j, v);
         }
     }
-    // The budget of levels 1 and 2 (module docs): of the dropped links to coarsest senders,
-    // keep all but the smallest whose norms sum to at most epsilon.
+    // The budgets (module docs): of the links Fig. 5 dropped, keep all but the smallest whose
+    // norms sum to at most the budget; those to coarsest senders at levels 1 and 2 (contacts),
+    // those to finer senders at levels 2 and 3.
     let contact = counts.near as f32 > CONTACT_FRACTION * counts.rays as f32;
-    if keeps_budget(level, contact) && has_parent {
+    let budgets = [
+        (keeps_budget(level, contact), false, eps),
+        (keeps_finer_budget(level), true, eps * FINER_BUDGET_FACTOR),
+    ];
+    for (on, finer, budget) in budgets {
+        if !(on && has_parent) {
+            continue;
+        }
         let mut candidates: Vec<(f32, u32)> = touched
             .iter()
-            .filter(|&&j| j < sender_coarsest)
+            .filter(|&&j| (j >= sender_coarsest) == finer)
             .filter(|&&j| links.binary_search_by_key(&j, |(s, _)| *s).is_err())
             .map(|&j| (link_norm(scratch.get(j)), j))
             .filter(|(norm, _)| *norm > 0.0)
@@ -450,7 +493,7 @@ fn process(
         let mut sum = 0.0f32;
         let mut cut = 0;
         for (k, (norm, _)) in candidates.iter().enumerate() {
-            if sum + norm > eps {
+            if sum + norm > budget {
                 break;
             }
             sum += norm;
@@ -458,9 +501,11 @@ fn process(
         }
         for &(_, j) in &candidates[cut..] {
             let v = *scratch.get(j);
-            // Counted as dropped above; kept after all.
-            for (d, a) in dropped.iter_mut().zip(along_normal(&v, n)) {
-                *d -= a;
+            if !finer {
+                // Counted as dropped above (the sums see coarsest senders only); kept after all.
+                for (d, a) in dropped.iter_mut().zip(along_normal(&v, n)) {
+                    *d -= a;
+                }
             }
             links.push((j, v));
         }

@@ -440,6 +440,64 @@ fn level_two_keeps_sub_epsilon_links_at_contacts_only() {
     }
 }
 
+/// Levels 2 and 3 keep their largest links to finer senders below epsilon by a budget
+/// (`refine::keeps_finer_budget`); Fig. 5 alone keeps a finer link only above epsilon, so at
+/// level 1 and at levels 4 and finer none below it is stored (level 0 keeps every link).
+/// Epsilon is small here so that the budget (40 epsilon) is below what a receiver's finer links
+/// sum to in this small box (at the default 0.025 it drops them all, as it should).
+#[test]
+fn levels_two_and_three_keep_finer_sender_links_by_a_budget() {
+    let epsilon = 0.005f32;
+    let out = bake_with(
+        "builtin:cornell",
+        BakeOptions {
+            receiver_levels: Some(5),
+            coarse_count: Some(60),
+            sender_levels: Some(3),
+            gather_rays: Some(64),
+            epsilon: Some(epsilon),
+            level0_paths: Some(0),
+            ..Default::default()
+        },
+        2,
+    );
+    let b = &out.contents.basis.basis;
+    let links = &out.contents.transport.as_ref().unwrap().links;
+    let coarsest = b.level_range(0).len() as u32;
+    // Per level: links to finer senders well below epsilon (f16 storage moves a norm by far
+    // less than the margin), and the largest of their norms.
+    let level_of = |j: usize| {
+        (0..b.levels())
+            .find(|&l| b.level_range(l).contains(&j))
+            .unwrap()
+    };
+    let mut small = vec![0u64; b.levels()];
+    for (slot, &s) in links.sender_ids.iter().enumerate() {
+        if s < coarsest {
+            continue;
+        }
+        for k in links.offsets[slot] as usize..links.offsets[slot + 1] as usize {
+            if link_norm(&links.value(k, slot)) < 0.5 * epsilon {
+                small[level_of(links.receiver_ids[k] as usize)] += 1;
+            }
+        }
+    }
+    eprintln!("sub-epsilon links to finer senders per receiver level: {small:?}");
+    for (l, &count) in small.iter().enumerate().skip(1) {
+        assert_eq!(
+            count > 0,
+            mlt_bake::refine::keeps_finer_budget(l),
+            "level {l}: {count} sub-epsilon links to finer senders"
+        );
+    }
+    assert!(small[2] >= 100 && small[3] >= 100, "{small:?}");
+    // Those levels gather with more rays, since their budget links rest on few hits.
+    assert!(
+        mlt_bake::refine::gather_rays_at(2, 64) > mlt_bake::refine::gather_rays_at(4, 64)
+            && mlt_bake::refine::gather_rays_at(3, 64) > mlt_bake::refine::gather_rays_at(4, 64)
+    );
+}
+
 #[test]
 fn a_smaller_bounce_epsilon_keeps_the_energy_that_truncation_drops() {
     // Two sender levels: the links from coarsest senders to coarsest receivers are never

@@ -302,13 +302,20 @@ impl<'a> Tracer<'a> {
     /// on nearby surfaces (a light just below a ceiling), which cosine sampling finds too
     /// rarely; the cosine sample covers `y` close to `p` (corners). The path then continues
     /// from the cosine sample with throughput `β *= ρ(y)`, so
-    /// `E_i(x) = Σ_k β_k T(y_k)` with `y_0 = x`, `β_0 = 1`.
-    fn indirect_sample(&self, x: Vec3, ns: Vec3, ng: Vec3, rng: &mut Pcg32) -> [f32; 3] {
+    /// `E_i(x) = Σ_k β_k T(y_k)` with `y_0 = x`, `β_0 = 1`, over at most `bounces` bounces.
+    fn indirect_sample(
+        &self,
+        x: Vec3,
+        ns: Vec3,
+        ng: Vec3,
+        bounces: u32,
+        rng: &mut Pcg32,
+    ) -> [f32; 3] {
         let mut acc = [0.0f32; 3];
         let mut beta = [1.0f32; 3];
         let (mut p, mut ns, mut ng) = (x, ns, ng);
         let inv_pi = std::f32::consts::FRAC_1_PI;
-        for bounce in 1..=self.opts.max_bounces {
+        for bounce in 1..=bounces {
             // Light-sampled one-bounce term.
             let t = self.light_sample(p, ns, ng, rng);
             for c in 0..3 {
@@ -489,7 +496,18 @@ impl<'a> Tracer<'a> {
                 dir,
             );
         }
-        let ei = self.indirect_sample(hit.position, hit.shading_normal, hit.geometric_normal, rng);
+        // Bounces 2 and later of `x` are bounces 1 and later of `y`: one fewer.
+        let rest = self.opts.max_bounces - 1;
+        if rest == 0 {
+            return out;
+        }
+        let ei = self.indirect_sample(
+            hit.position,
+            hit.shading_normal,
+            hit.geometric_normal,
+            rest,
+            rng,
+        );
         add(
             std::array::from_fn(|c| hit.albedo[c] * inv_pi * ei[c] * two_pi),
             dir,
@@ -520,7 +538,7 @@ impl<'a> Tracer<'a> {
             };
             let (x, ns, ng) = (hit.position, hit.shading_normal, hit.geometric_normal);
             let ed = self.direct(x, ns, ng);
-            let ei = self.indirect_sample(x, ns, ng, rng);
+            let ei = self.indirect_sample(x, ns, ng, self.opts.max_bounces, rng);
             for c in 0..3 {
                 let brdf = (hit.albedo[c] * std::f32::consts::FRAC_1_PI) as f64;
                 direct[c] += brdf * ed[c] as f64;
@@ -714,7 +732,7 @@ pub fn reference_probes(
             for (hh, s) in sum.iter_mut().enumerate() {
                 let mut rng = Pcg32::new(opts.seed, DOMAIN_PROBE, 2 * k as u64 + hh as u64);
                 for _ in 0..half {
-                    let v = tracer.indirect_sample(x, n, n, &mut rng);
+                    let v = tracer.indirect_sample(x, n, n, opts.max_bounces, &mut rng);
                     for c in 0..3 {
                         s[c] += v[c] as f64;
                         sq[c] += (v[c] as f64) * (v[c] as f64);
@@ -893,6 +911,32 @@ mod tests {
                 );
                 assert!(across < 2.0 * tol, "point {k}: tangential {across}");
             }
+        }
+    }
+
+    /// With a bounce cap `B` the closed sphere's vector irradiance is the series' first `B`
+    /// terms, `E0 (rho + .. + rho^B)` along the normal: the cap counts bounces as the camera
+    /// reference's `--max-bounces` does (the first bounce is bounce 1).
+    #[test]
+    fn vector_irradiance_bounce_cap_counts_like_the_reference() {
+        let scene = mlt_scenes::load_scene("builtin:sphere?albedo=0.5&radius=1").unwrap();
+        let caster = scene.build_caster();
+        let light = Light::point(Vec3::ZERO, [1.0; 3]).unwrap();
+        let points = [Probe {
+            position: Vec3::new(0.0, 0.0, 1.0),
+            normal: Vec3::new(0.0, 0.0, -1.0),
+        }];
+        for (cap, want) in [(1u32, 0.5f32), (2, 0.75), (3, 0.875)] {
+            let mut opts = ReferenceOptions::new(2000, 9);
+            opts.max_bounces = cap;
+            let (v, se) =
+                reference_vector_irradiance(caster.as_ref(), &light, &points, &opts).unwrap();
+            let along = Vec3::new(v[0], v[1], v[2]).dot(points[0].normal);
+            assert!(
+                (along - want).abs() < 4.0 * se[0] + 0.01,
+                "cap {cap}: {along}, expected {want} (se {})",
+                se[0]
+            );
         }
     }
 

@@ -59,6 +59,10 @@ pub struct RenderArgs {
     /// hold the transport's error.
     #[arg(long, value_name = "A..B", requires = "oracle", value_parser = parse_levels)]
     pub oracle_levels: Option<Range<usize>>,
+    /// With --oracle: path length cap of the oracle's paths (1: the first bounce alone, to
+    /// compare with a `bake --bounces 1` file and `view reference --max-bounces 1`).
+    #[arg(long, requires = "oracle", value_parser = clap::value_parser!(u32).range(1..))]
+    pub oracle_max_bounces: Option<u32>,
 }
 
 /// `A..B` with `A < B` for [`RenderArgs::oracle_levels`].
@@ -138,7 +142,10 @@ fn oracle_images(args: &RenderArgs, v: &mut Viewing<'_>, spp: u32) -> Result<()>
             v.ib.levels()
         );
     }
-    let opts = ReferenceOptions::new(spp, args.reference_seed ^ 0x6f72_6163_6c65);
+    let mut opts = ReferenceOptions::new(spp, args.reference_seed ^ 0x6f72_6163_6c65);
+    if let Some(b) = args.oracle_max_bounces {
+        opts.max_bounces = b;
+    }
     let o = oracle(v.ib, v.caster, &v.light, &opts).context("path tracing the basis floor")?;
     let gpu = Gpu::headless().context("starting the GPU for headless rendering")?;
     let mesh = GpuMesh::from_scene(v.scene);
@@ -168,6 +175,7 @@ fn oracle_images(args: &RenderArgs, v: &mut Viewing<'_>, spp: u32) -> Result<()>
         "relative_noise_per_point": o.relative_noise,
         "unsupported_points": o.projection.unsupported_points,
         "oracle_levels": args.oracle_levels.as_ref().map(|l| [l.start, l.end]),
+        "max_bounces": opts.max_bounces,
         "seconds": o.seconds,
     });
     std::fs::write(
