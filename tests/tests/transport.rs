@@ -464,13 +464,8 @@ fn levels_two_and_three_keep_finer_sender_links_by_a_budget() {
     let b = &out.contents.basis.basis;
     let links = &out.contents.transport.as_ref().unwrap().links;
     let coarsest = b.level_range(0).len() as u32;
-    // Per level: links to finer senders well below epsilon (f16 storage moves a norm by far
-    // less than the margin), and the largest of their norms.
-    let level_of = |j: usize| {
-        (0..b.levels())
-            .find(|&l| b.level_range(l).contains(&j))
-            .unwrap()
-    };
+    // Per receiver level: links to finer senders well below epsilon (f16 storage moves a norm
+    // by far less than the margin).
     let mut small = vec![0u64; b.levels()];
     for (slot, &s) in links.sender_ids.iter().enumerate() {
         if s < coarsest {
@@ -478,7 +473,7 @@ fn levels_two_and_three_keep_finer_sender_links_by_a_budget() {
         }
         for k in links.offsets[slot] as usize..links.offsets[slot + 1] as usize {
             if link_norm(&links.value(k, slot)) < 0.5 * epsilon {
-                small[level_of(links.receiver_ids[k] as usize)] += 1;
+                small[b.level_of(links.receiver_ids[k] as usize)] += 1;
             }
         }
     }
