@@ -5,7 +5,8 @@
 //! detail coefficients), and the dropped differences of finer receivers (Eq. 17) partly cancel,
 //! so an estimate under uniform emission can have the wrong sign for a real light. Here the
 //! links are weighted by the emission the file's own light gives: its direct irradiance at
-//! every sender point (the viewer's light model, `mlt_format::light_model`, one shadow ray),
+//! every sender point (the viewer's light model, `mlt_format::light_model`, averaged over the
+//! point's basis function near the light as the viewer does, one shadow ray),
 //! pull-pushed onto the sender levels as the viewer projects it (section 3.3). The
 //! dropped light is measured where it shows: at each processed receiver's point, the light its
 //! gather found against what the kept hierarchy reconstructs there ([`estimate`]). A dropped
@@ -17,6 +18,7 @@ use mlt_format::light_model::Light;
 use mlt_format::links::LINK_DIM;
 use mlt_format::meta::RefinementDrop;
 use mlt_format::pull_push::pull_push_levels;
+use mlt_format::support_average::{near_weight, SupportAverage};
 use mlt_format::IndexedBasis;
 use mlt_scenes::RayCaster;
 use rayon::prelude::*;
@@ -29,6 +31,9 @@ pub const EMISSION: &str = "file light";
 
 /// The representative emission: `light`'s direct irradiance sampled at the points of the
 /// coarsest `sender_levels` levels and pull-pushed onto them (3 floats per sender point).
+/// Near the light a sample is the irradiance averaged over the point's basis function, blended
+/// with the point's own as the viewer blends them (`mlt_format::support_average`), so that a
+/// hot spot between sender points carries its flux here as in the viewer's frames.
 pub fn representative_emission(
     ib: &IndexedBasis,
     caster: &dyn RayCaster,
@@ -40,11 +45,21 @@ pub fn representative_emission(
     let points = b.level_offsets[levels] as usize;
     let eps = caster.ray_epsilon();
     let target = light.position;
+    let support = SupportAverage::new(ib, points);
     let samples: Vec<f32> = (0..points)
         .into_par_iter()
         .flat_map_iter(|j| {
             let (x, n) = (Vec3::from(b.positions[j]), Vec3::from(b.normals[j]));
             let mut e = light.irradiance(x, n);
+            let near = near_weight(
+                light.position.distance(x),
+                (light.position - x).dot(n),
+                b.radii[j],
+            );
+            if near > 0.0 {
+                let avg = support.irradiance(j, light);
+                e = std::array::from_fn(|c| near * avg[c] + (1.0 - near) * e[c]);
+            }
             if e != [0.0; 3] && caster.occluded(x + n * eps, target) {
                 e = [0.0; 3];
             }
@@ -68,6 +83,25 @@ pub fn applied(scratch: &Scratch, e: &[f32]) -> [f32; LINK_DIM] {
     out
 }
 
+/// T's coefficients under the representative emission, `(T e)_i = sum_j T_ij e_j`, for the
+/// `points` points of the basis (`LINK_DIM` floats each; zero where `t` has no row).
+pub fn coefficients(points: usize, t: &ReceiverLinks) -> Vec<f32> {
+    let e = &t.emission;
+    let mut out = vec![0.0f32; points * LINK_DIM];
+    for &r in &t.rows {
+        let (senders, values) = t.row(r as usize);
+        let c = &mut out[r as usize * LINK_DIM..(r as usize + 1) * LINK_DIM];
+        for (&s, v) in senders.iter().zip(values) {
+            if let Some(es) = e.get(3 * s as usize..3 * s as usize + 3) {
+                for k in 0..LINK_DIM {
+                    c[k] += v[k] * es[k / 3];
+                }
+            }
+        }
+    }
+    out
+}
+
 /// Per channel, `n . v_c`.
 fn along(v: &[f32], n: [f32; 3]) -> [f64; 3] {
     std::array::from_fn(|c| (n[0] * v[3 * c] + n[1] * v[3 * c + 1] + n[2] * v[3 * c + 2]) as f64)
@@ -84,20 +118,10 @@ fn along(v: &[f32], n: [f32; 3]) -> [f64; 3] {
 /// merge of shards, which rebuilds the rows in that order).
 pub fn estimate(ib: &IndexedBasis, t: &ReceiverLinks) -> RefinementDrop {
     let b = &ib.basis;
-    let e = &t.emission;
     // T's coefficients under e, and the projection of the gathers, per point (zero where no row).
-    let mut cut = vec![0.0f32; b.len() * LINK_DIM];
+    let cut = coefficients(b.len(), t);
     let mut full = vec![0.0f32; b.len() * LINK_DIM];
     for (row, &r) in t.rows.iter().enumerate() {
-        let (senders, values) = t.row(r as usize);
-        let c = &mut cut[r as usize * LINK_DIM..(r as usize + 1) * LINK_DIM];
-        for (&s, v) in senders.iter().zip(values) {
-            if let Some(es) = e.get(3 * s as usize..3 * s as usize + 3) {
-                for k in 0..LINK_DIM {
-                    c[k] += v[k] * es[k / 3];
-                }
-            }
-        }
         full[r as usize * LINK_DIM..(r as usize + 1) * LINK_DIM].copy_from_slice(&t.gathered[row]);
     }
     // Eq. 7, level by level, over the processed receivers only.

@@ -11,6 +11,7 @@
 //! - [`pipeline`]: everything together, with statistics; [`report`]: human-readable output.
 
 pub mod batch;
+pub mod camera_check;
 pub mod candidates;
 pub mod coverage;
 pub mod drop_estimate;

@@ -161,10 +161,11 @@ pub fn bake_scene(
         &mut warnings,
     )?;
 
+    let camera = camera_info(scene);
     let stage = transport_stage(
         basis.ib,
         caster.as_ref(),
-        &scene.light,
+        (&scene.light, &camera),
         &opts,
         transport_params,
         policy,
@@ -187,14 +188,7 @@ pub fn bake_scene(
     let meta = Meta {
         tool: tool_version(),
         scene: scene_info(scene, caster.as_ref()),
-        camera: CameraInfo {
-            position: scene.camera.position,
-            target: scene.camera.target,
-            up: scene.camera.up,
-            fovy_deg: scene.camera.fovy_deg,
-            width: scene.camera.width,
-            height: scene.camera.height,
-        },
+        camera,
         light: light_info(scene),
         params,
         stats: basis.stats,
@@ -254,12 +248,13 @@ struct TransportStage {
 
 /// The transport (section 3): none for a basis-only bake, T's rows of one shard for a shard
 /// bake (whose file key mixes in the shard), else S. `light` is the representative emission
-/// of the estimate of what refinement drops (`drop_estimate`).
+/// of the estimate of what refinement drops (`drop_estimate`); with `camera`, the scene's
+/// camera, it is also what the first bounce is checked under (`camera_check`).
 #[allow(clippy::too_many_arguments)]
 fn transport_stage(
     mut ib: IndexedBasis,
     caster: &dyn RayCaster,
-    light: &LightDesc,
+    (light, camera): (&LightDesc, &CameraInfo),
     opts: &BakeOptions,
     transport_params: TransportParams,
     policy: BouncePolicy,
@@ -288,7 +283,7 @@ fn transport_stage(
         ));
         file_key = mix64(key ^ mix64(((index as u64) << 32) | count as u64));
     } else if !opts.basis_only {
-        let out = compute_transport(&ib, caster, transport_params, policy, light, obs)?;
+        let out = compute_transport(&ib, caster, transport_params, policy, light, camera, obs)?;
         warnings = out.warnings;
         if out.levels_stored < ib.levels() {
             let placed = ib.levels();
@@ -516,6 +511,18 @@ fn scene_info(scene: &Scene, caster: &dyn RayCaster) -> SceneInfo {
         viewpoint: scene.viewpoint.to_array(),
         bounds_min: bounds_min.to_array(),
         bounds_max: bounds_max.to_array(),
+    }
+}
+
+/// The scene's camera as the file stores it.
+fn camera_info(scene: &Scene) -> CameraInfo {
+    CameraInfo {
+        position: scene.camera.position,
+        target: scene.camera.target,
+        up: scene.camera.up,
+        fovy_deg: scene.camera.fovy_deg,
+        width: scene.camera.width,
+        height: scene.camera.height,
     }
 }
 

@@ -4,7 +4,7 @@ use std::fmt::Write;
 
 use mlt_format::file::FileInfo;
 use mlt_format::meta::{
-    Meta, RefinementDrop, Timings, TransportMeta, TransportReport, TransportTimings,
+    CameraCheck, Meta, RefinementDrop, Timings, TransportMeta, TransportReport, TransportTimings,
 };
 
 fn hms(s: f64) -> String {
@@ -198,23 +198,42 @@ fn signed_pct(x: f64) -> String {
 fn pct(x: f64) -> String {
     if x == 0.0 {
         "0 %".into()
+    } else if x < 1e-6 {
+        // A tail like rho^40 is zero for every purpose; its exponent would only distract.
+        "< 0.0001 %".into()
     } else if x < 1e-4 {
-        format!("{:.1e} %", 100.0 * x)
+        format!("{:.4} %", 100.0 * x)
     } else {
         format!("{:.2} %", 100.0 * x)
     }
 }
 
-/// The error estimate's total with the light refinement dropped from T (`TDRP`, when the file
-/// has it): the magnitude of [`RefinementDrop::share`] adds to the `TRPT` total.
-pub fn total_with_drop(r: &TransportReport, drop: Option<&RefinementDrop>) -> f64 {
-    r.error.total + drop.map_or(0.0, |d| d.share.abs())
+/// The error estimate's total: the `TRPT` total (series tail, bounce truncation, storage) plus
+/// the magnitude of the indirect light's share at the scene's camera
+/// ([`CameraCheck::share_all`], `TCAM`), which holds the links of T dropped, the bounces, the
+/// direct light's projection and the basis' reconstruction where the camera looks; in a file without that check, plus the magnitude of
+/// what refinement dropped at the receivers ([`RefinementDrop::share`], `TDRP`).
+pub fn total_with_drop(
+    r: &TransportReport,
+    drop: Option<&RefinementDrop>,
+    check: Option<&CameraCheck>,
+) -> f64 {
+    r.error.total
+        + match (check, drop) {
+            (Some(c), _) => c.share_all.abs(),
+            (None, Some(d)) => d.share.abs(),
+            (None, None) => 0.0,
+        }
 }
 
 /// The end of the bake's report: the bounce count chosen, the error it estimates it committed
-/// to (with what refinement dropped from T, `TDRP`, when the file has it), and what the file
-/// leaves out (the `TRPT` section).
-pub fn estimate_table(r: &TransportReport, drop: Option<&RefinementDrop>) -> String {
+/// to (with the first bounce checked at the scene's camera, `TCAM`, and what refinement dropped
+/// from T, `TDRP`, when the file has them), and what the file leaves out (the `TRPT` section).
+pub fn estimate_table(
+    r: &TransportReport,
+    drop: Option<&RefinementDrop>,
+    check: Option<&CameraCheck>,
+) -> String {
     let e = &r.error;
     let l = &r.left_out;
     let mut o = String::new();
@@ -235,28 +254,50 @@ pub fn estimate_table(r: &TransportReport, drop: Option<&RefinementDrop>) -> Str
             "NOT converged"
         }
     );
-    match drop {
-        Some(d) => {
+    let parts = format!(
+        "series tail {} + bounce truncation {} + f16 storage {} (uniform emission)",
+        pct(e.series_tail),
+        pct(e.bounce_truncation),
+        pct(e.quantisation)
+    );
+    let too = |share: f64| if share >= 0.0 { "dark" } else { "bright" };
+    let total = pct(total_with_drop(r, drop, check));
+    match (check, drop) {
+        (Some(c), _) => {
             let _ = writeln!(
                 o,
-                "error est.    {} of the indirect light = series tail {} + bounce truncation {} + f16 storage {} (uniform emission) + links of T dropped {} (signed, under the {}: the image is that much too {}); the basis' reconstruction error is not in it",
-                pct(total_with_drop(r, Some(d))),
-                pct(e.series_tail),
-                pct(e.bounce_truncation),
-                pct(e.quantisation),
+                "error est.    {total} of the indirect light = {parts} + indirect light at the camera {} +- {} (signed: the image is that much too {}; traced through {}x{} primary rays with {} paths each; the first bounce alone {} +- {}: T's dropped links, the direct light's projection and the basis)",
+                signed_pct(c.share_all),
+                pct(c.std_error_all),
+                too(c.share_all),
+                c.width,
+                c.height,
+                c.rays,
+                signed_pct(c.share),
+                pct(c.std_error)
+            );
+            if let Some(d) = drop {
+                let _ = writeln!(
+                    o,
+                    "              of which links of T dropped, at the receivers: {} (under the {})",
+                    signed_pct(d.share),
+                    d.emission
+                );
+            }
+        }
+        (None, Some(d)) => {
+            let _ = writeln!(
+                o,
+                "error est.    {total} of the indirect light = {parts} + links of T dropped {} (signed, under the {}: the image is that much too {}); the basis' reconstruction error is not in it",
                 signed_pct(d.share),
                 d.emission,
-                if d.share >= 0.0 { "dark" } else { "bright" }
+                too(d.share)
             );
         }
-        None => {
+        (None, None) => {
             let _ = writeln!(
                 o,
-                "error est.    {} of the indirect light = series tail {} + bounce truncation {} + f16 storage {} (uniform-emission estimate; T's links dropped at epsilon and the basis' reconstruction error are not in it)",
-                pct(e.total),
-                pct(e.series_tail),
-                pct(e.bounce_truncation),
-                pct(e.quantisation)
+                "error est.    {total} of the indirect light = {parts}; T's links dropped at epsilon and the basis' reconstruction error are not in it",
             );
         }
     }
@@ -361,7 +402,11 @@ pub fn info_text(info: &FileInfo) -> String {
         None => o.push_str("transport     none (basis only)\n"),
     }
     if let Some(r) = &info.report {
-        o.push_str(&estimate_table(r, info.refinement_drop.as_ref()));
+        o.push_str(&estimate_table(
+            r,
+            info.refinement_drop.as_ref(),
+            info.camera_check.as_ref(),
+        ));
     }
     if let Some(b) = &info.bounce_method {
         let _ = writeln!(

@@ -20,6 +20,7 @@ pub enum Stream {
     Gather = 4,
     Surface = 5,
     Paths = 6,
+    Camera = 7,
 }
 
 /// SplitMix64 generator.

@@ -15,8 +15,11 @@
 //! Where the bake traces the level-0 receivers' later bounces (`--level0-paths`), the paths
 //! end in T's expansion over every receiver, which no shard has: the merge traces them, with
 //! the scene (`bake merge --scene SCENE`), from the merged T. The shard section's fields for
-//! traced rows stay empty.
+//! traced rows stay empty. The check of the first bounce at the scene's camera
+//! (`camera_check`) traces the scene too: a merge with the scene computes it from the merged T,
+//! as the single bake does; one without leaves the file's `TCAM` section out.
 
+use mlt_format::light_model::Light;
 use mlt_format::links::LINK_DIM;
 use mlt_format::shard::ShardSection;
 use mlt_format::{BakeContents, IndexedBasis};
@@ -27,7 +30,7 @@ use crate::observer::Observer;
 use crate::pipeline::flat_section;
 use crate::refine::{ReceiverLinks, RefineStats};
 use crate::transport::{
-    finish_transport, trace_level0_bounces, traced_vertex, trim_levels, BouncePolicy,
+    finish_transport, trace_level0_bounces, traced_vertex, trim_levels, BouncePolicy, CheckScene,
 };
 
 /// Spreads the bits of a 10-bit integer three apart.
@@ -254,7 +257,15 @@ pub fn merge(
         };
         trace_level0_bounces(ib, caster, &s0.params, policy, &mut t, obs);
     }
-    let out = finish_transport(ib, t, rstats, s0.params.clone(), policy, 0.0, obs)?;
+    // The first-bounce check at the camera traces the scene: only with it, as a single bake.
+    let light = Light::from_info(&first.meta.light)
+        .map_err(|e| BakeError::Merge(format!("the shards' light: {e}")))?;
+    let check = caster.map(|caster| CheckScene {
+        caster,
+        camera: &first.meta.camera,
+        light: &light,
+    });
+    let out = finish_transport(ib, t, rstats, s0.params.clone(), policy, 0.0, check, obs)?;
     for w in &out.warnings {
         obs.warn(w);
     }

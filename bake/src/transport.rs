@@ -8,12 +8,13 @@ use mlt_format::light::LightDesc;
 use mlt_format::light_model::Light;
 use mlt_format::links::{Links, SenderLinks, LINK_DIM};
 use mlt_format::meta::{
-    BounceMethod, ErrorEstimate, LeftOut, RefinementDrop, TransportMeta, TransportParams,
-    TransportReport, TransportStats, TransportTimings,
+    BounceMethod, CameraCheck, CameraInfo, ErrorEstimate, LeftOut, RefinementDrop, TransportMeta,
+    TransportParams, TransportReport, TransportStats, TransportTimings,
 };
 use mlt_format::{IndexedBasis, Transport};
 use mlt_scenes::RayCaster;
 
+use crate::camera_check::{camera_check, frame_coefficients, CheckSettings};
 use crate::drop_estimate::{estimate, representative_emission};
 use crate::error::BakeError;
 use crate::neumann::{series, spectral_radius, BounceReceivers, Row, Rows, SeriesReport};
@@ -63,6 +64,15 @@ impl Default for BouncePolicy {
             level0_paths: 0,
         }
     }
+}
+
+/// What the check of the first bounce at the scene's camera (`camera_check`) needs beyond T:
+/// the scene, its camera and its light.
+#[derive(Clone, Copy)]
+pub struct CheckScene<'a> {
+    pub caster: &'a dyn RayCaster,
+    pub camera: &'a CameraInfo,
+    pub light: &'a Light,
 }
 
 /// Bounces needed so that the tail of the series, `sum_{b > B} rho^(b-1)` over
@@ -213,20 +223,29 @@ pub fn peak_rss_bytes() -> u64 {
 
 /// Computes S for `ib` (in the current rayon pool; the result does not depend on its size).
 /// `light` gives the representative emission of the estimate of what refinement drops
-/// (`drop_estimate`); it does not change S.
+/// (`drop_estimate`) and, with `camera`, the check of the first bounce at the camera
+/// (`camera_check`); neither changes S.
+#[allow(clippy::too_many_arguments)]
 pub fn compute_transport(
     ib: &IndexedBasis,
     caster: &dyn RayCaster,
     params: TransportParams,
     policy: BouncePolicy,
     light: &LightDesc,
+    camera: &CameraInfo,
     obs: &dyn Observer,
 ) -> Result<TransportOutput, BakeError> {
     check_params(&params, ib.levels() as u32)?;
+    let model = Light::from_desc(light).map_err(|e| BakeError::InvalidParameter(e.to_string()))?;
     let (mut t, rstats, refine_s) = refine_t(ib, caster, &params, light, None, obs)?;
     trace_level0_bounces(ib, caster, &params, policy, &mut t, obs);
     let dropped = rstats.dropped_share();
-    let mut out = finish_transport(ib, t, rstats, params, policy, refine_s, obs)?;
+    let check = CheckScene {
+        caster,
+        camera,
+        light: &model,
+    };
+    let mut out = finish_transport(ib, t, rstats, params, policy, refine_s, Some(check), obs)?;
     out.refinement_drop = Some(dropped);
     Ok(out)
 }
@@ -241,6 +260,59 @@ pub fn refinement_warning(drop: &RefinementDrop, epsilon: f32, tolerance: f64) -
             if d > 0.0 { "added" } else { "taken away" },
             100.0 * d.abs(),
             if d > 0.0 { "dark" } else { "bright" }
+        )
+    })
+}
+
+/// The check of T's first bounce at the scene's camera (`camera_check`), as a stage of the
+/// bake's report; `None` when the camera is degenerate.
+fn check_at_camera(
+    ib: &IndexedBasis,
+    (t, links, fine): (&ReceiverLinks, &Links, bool),
+    scene: CheckScene<'_>,
+    seed: u64,
+    obs: &dyn Observer,
+) -> Option<CameraCheck> {
+    obs.stage("light checked at the camera");
+    let t0 = Instant::now();
+    let settings = CheckSettings::new(seed);
+    let frame = frame_coefficients(ib, links, &t.emission, fine);
+    let c = camera_check(
+        ib,
+        scene.caster,
+        scene.light,
+        scene.camera,
+        (t, &frame),
+        settings,
+    )?;
+    obs.done(
+        "light checked at the camera",
+        t0.elapsed().as_secs_f64(),
+        &format!(
+            "{}x{} primary rays, {} paths each: the indirect light {:+.2} % +- {:.2} % short of the traced one (the first bounce {:+.2} % +- {:.2} %)",
+            c.width,
+            c.height,
+            c.rays,
+            100.0 * c.share_all,
+            100.0 * c.std_error_all,
+            100.0 * c.share,
+            100.0 * c.std_error
+        ),
+    );
+    Some(c)
+}
+
+/// The warning when the indirect light at the camera lacks (or exceeds) more than `tolerance`
+/// of the traced one by more than twice its standard error.
+pub fn camera_warning(c: &CameraCheck, tolerance: f64) -> Option<String> {
+    let d = c.share_all;
+    (d.abs() > tolerance && d.abs() > 2.0 * c.std_error_all).then(|| {
+        format!(
+            "at the scene's camera the indirect light is about {:.1} % (+- {:.1} %) too {} against traced paths (the first bounce alone {:+.1} %: T's dropped links, the direct light's projection and the basis); a smaller --epsilon or more levels reduce it",
+            100.0 * d.abs(),
+            100.0 * c.std_error_all,
+            if d > 0.0 { "dark" } else { "bright" },
+            100.0 * c.share
         )
     })
 }
@@ -351,6 +423,7 @@ pub fn refine_t(
 /// From T to the stored S: the spectral-radius check, the Neumann series, sender-major
 /// packing and the statistics. Deterministic in `t` and `rstats` (a merge of shards calls it
 /// with the shards' T and gets the single bake's S).
+#[allow(clippy::too_many_arguments)]
 pub fn finish_transport(
     ib: &IndexedBasis,
     mut t: ReceiverLinks,
@@ -358,6 +431,7 @@ pub fn finish_transport(
     params: TransportParams,
     policy: BouncePolicy,
     refine_s: f64,
+    check: Option<CheckScene<'_>>,
     obs: &dyn Observer,
 ) -> Result<TransportOutput, BakeError> {
     let t_start = Instant::now();
@@ -385,6 +459,9 @@ pub fn finish_transport(
         }
     }
     let p = pack_s(ib, &t, &run.extra, &params, senders)?;
+    let fine = !params.bounces_on_all_receivers && run.report.bounces >= 2;
+    let camera_check =
+        check.and_then(|c| check_at_camera(ib, (&t, &p.links, fine), c, params.seed, obs));
     let SeriesRun {
         rho,
         needed,
@@ -396,6 +473,13 @@ pub fn finish_transport(
     let error = error_estimate(&report, rho, policy.tolerance, p.qerr, p.max_link, traced);
     let mut warnings = error_warnings(&error, &report, rho, needed, &params, policy, obs);
     if let Some(w) = refinement_warning(&drop, params.epsilon, policy.tolerance) {
+        obs.warn(&w);
+        warnings.push(w);
+    }
+    if let Some(w) = camera_check
+        .as_ref()
+        .and_then(|c| camera_warning(c, policy.tolerance))
+    {
         obs.warn(&w);
         warnings.push(w);
     }
@@ -462,6 +546,7 @@ pub fn finish_transport(
                 level0_paths: policy.level0_paths,
                 max_vertex: traced,
             }),
+            camera_check,
         },
         timings,
         warnings,

@@ -24,7 +24,7 @@
 //! A reader reads the files of its own major version only. Within a major version:
 //! - a minor version may add sections under new tags, which older readers skip;
 //! - the sections of a baked file (`META`, `BASE`, `RTRE`, `TRNS`, `SLNK`, `TRPT`, `FLAT`,
-//!   `TDRP`, `FLT2`, `TBNC`) keep their layout for the whole major version, so every reader of the
+//!   `TDRP`, `FLT2`, `TBNC`, `TCAM`) keep their layout for the whole major version, so every reader of the
 //!   major version reads them from a file of any minor version;
 //! - the layout of `TSHD`, which only the intermediate shard files of `bake --shard` carry
 //!   (they are merged by the build that computed them), may change with a minor version. A
@@ -42,7 +42,10 @@
 //! more parameter (`finer_cover`: coarser points left out where finer ones cover them), so a
 //! 1.5 reader skips it and builds the flat basis by its own rule; 1.7 the optional `TBNC` section
 //! (how the coarsest receivers' later bounces were traced as paths) and those paths' rows in
-//! `TSHD` (its current layout: `level0_paths` and the owned rows). From 1.4 the bake
+//! `TSHD` (`level0_paths` and the owned rows); 1.8 the optional `TCAM` section (the bake's
+//! check of its first bounce at the scene's camera) and, in `TSHD` (its current layout), the
+//! representative emission sampled near the light as the viewer samples it (the same fields;
+//! a 1.7 shard's emission is the point samples, so 1.7 shards are refused). From 1.4 the bake
 //! stores each level's points in Morton order; readers do not rely on it.
 
 use std::ops::Deref;
@@ -56,9 +59,9 @@ use crate::error::FormatError;
 pub const MAGIC: [u8; 8] = *b"\x89MLTBK\r\n";
 pub const VERSION_MAJOR: u16 = 1;
 /// The minor version this build writes (the module docs list what each one added).
-pub const VERSION_MINOR: u16 = 7;
+pub const VERSION_MINOR: u16 = 8;
 /// The first minor version with the `TSHD` layout this build reads.
-pub const SHARD_LAYOUT_MINOR: u16 = 7;
+pub const SHARD_LAYOUT_MINOR: u16 = 8;
 pub const FIXED_HEADER: usize = 64;
 pub const ENTRY_SIZE: usize = 32;
 pub const ALIGN: usize = 16;

@@ -20,7 +20,9 @@ use crate::flat_section::{
     ArchivedFlatSection, ArchivedFlatSection1_5, FlatRule, FlatSection, StoredFlat,
 };
 use crate::links::{ArchivedLinks, Links};
-use crate::meta::{BounceMethod, Meta, RefinementDrop, TransportMeta, TransportReport};
+use crate::meta::{
+    BounceMethod, CameraCheck, Meta, RefinementDrop, TransportMeta, TransportReport,
+};
 use crate::rtree::RTree;
 use crate::shard::ShardSection;
 use crate::shepard::IndexedBasis;
@@ -53,6 +55,9 @@ pub const TAG_DROP: [u8; 4] = *b"TDRP";
 /// Added in format 1.7: how the level-0 rows' later bounces were computed when the bake
 /// traced them as paths ([`BounceMethod`]); optional, absent for the series' chain.
 pub const TAG_BOUNCES: [u8; 4] = *b"TBNC";
+/// Added in format 1.8: the bake's check of its first bounce at the scene's camera
+/// ([`CameraCheck`]); optional.
+pub const TAG_CAMERA_CHECK: [u8; 4] = *b"TCAM";
 
 /// The minor versions (of [`VERSION_MAJOR`]) from which this build reads the section `tag`:
 /// any for the sections of a baked file, whose layout is fixed within the major version; for
@@ -101,6 +106,8 @@ pub struct Transport {
     pub drop: Option<RefinementDrop>,
     /// The `TBNC` section; `None` where the series chained the bounces (and before 1.7).
     pub bounces: Option<BounceMethod>,
+    /// The `TCAM` section; `None` before 1.8 and in merges made without the scene.
+    pub camera_check: Option<CameraCheck>,
 }
 
 /// How to write.
@@ -144,6 +151,10 @@ pub fn encode(contents: &BakeContents, opts: WriteOptions) -> Result<Vec<u8>, Fo
         if let Some(b) = &t.bounces {
             let bytes = rkyv::to_bytes::<rancor::Error>(b).map_err(ser_err(TAG_BOUNCES))?;
             sections.push((TAG_BOUNCES, bytes));
+        }
+        if let Some(c) = &t.camera_check {
+            let bytes = rkyv::to_bytes::<rancor::Error>(c).map_err(ser_err(TAG_CAMERA_CHECK))?;
+            sections.push((TAG_CAMERA_CHECK, bytes));
         }
     }
     if let Some(s) = &contents.shard {
@@ -394,6 +405,14 @@ impl BakedFile {
         self.section::<BounceMethod>(TAG_BOUNCES).map(Some)
     }
 
+    /// The `TCAM` section, if the file has one (format 1.8 and later, with transport).
+    pub fn camera_check(&self) -> Result<Option<CameraCheck>, FormatError> {
+        if !self.has_section(TAG_CAMERA_CHECK) {
+            return Ok(None);
+        }
+        self.section::<CameraCheck>(TAG_CAMERA_CHECK).map(Some)
+    }
+
     /// The `TSHD` section of a shard file, validated against the basis' size.
     pub fn shard(&self) -> Result<Option<ShardSection>, FormatError> {
         if !self.has_section(TAG_SHARD) {
@@ -432,6 +451,7 @@ impl BakedFile {
                     report: self.transport_report()?,
                     drop: self.refinement_drop()?,
                     bounces: self.bounce_method()?,
+                    camera_check: self.camera_check()?,
                 })
             }
         };
@@ -554,6 +574,7 @@ impl BakedFile {
             report: self.transport_report()?,
             refinement_drop: self.refinement_drop()?,
             bounce_method: self.bounce_method()?,
+            camera_check: self.camera_check()?,
         })
     }
 }
@@ -576,6 +597,8 @@ pub struct FileInfo {
     pub refinement_drop: Option<RefinementDrop>,
     /// The `TBNC` section (format 1.7 and later, level-0 bounces traced as paths).
     pub bounce_method: Option<BounceMethod>,
+    /// The `TCAM` section (format 1.8 and later).
+    pub camera_check: Option<CameraCheck>,
 }
 
 #[derive(Clone, Debug, Serialize)]

@@ -4,6 +4,8 @@
 //! - [`kernel`]: weight functions (Eqs. 8-10) and the Poisson-disk metric (Eq. 11);
 //! - [`basis`]: the hierarchical point set; [`rtree`]: one R-tree per level;
 //! - [`shepard`]: per-level Shepard basis (Eq. 2) and hierarchical reconstruction (Eq. 6);
+//!   [`support_average`]: a point light's irradiance averaged over a basis function (the
+//!   direct-light sample near the light, which the viewer and the bake's estimates share);
 //! - [`pull_push`]: coarse-to-fine projection `P` (Eq. 7) and pull-push `P-dagger`;
 //! - [`flat_basis`]: the single-level basis the viewer splats, stored in a file by
 //!   [`flat_section`]; [`flatten`]: resampling to a single level (the reference the viewer's precomputed
@@ -11,7 +13,7 @@
 //!   the point order;
 //! - [`links`]: the stored direct-to-indirect operator `S`;
 //! - [`container`], [`meta`], [`file`]: the versioned, memory-mappable file; [`light`]: the
-//!   scene's light, from the manifest to the file.
+//!   scene's light, from the manifest to the file; [`camera`]: the scene camera's primary rays.
 //!
 //! The per-frame operators built from a file (precomputed pull-push, receiver-major links,
 //! sparse flattening) belong to the viewer's relighting crate, `mlt-relight`. This crate
@@ -19,6 +21,7 @@
 
 pub mod adjacency;
 pub mod basis;
+pub mod camera;
 pub mod container;
 pub mod error;
 pub mod file;
@@ -35,6 +38,7 @@ pub mod pull_push;
 pub mod rtree;
 pub mod shard;
 pub mod shepard;
+pub mod support_average;
 #[cfg(any(test, feature = "test-support"))]
 pub mod test_support;
 

@@ -360,3 +360,40 @@ impl RefinementDrop {
         }
     }
 }
+
+data! {
+    /// The `TCAM` section (since format 1.8; absent from older files, basis-only and shard
+    /// files, and from merges without the scene): the bake's check of its own first bounce
+    /// where the scene's camera looks. Through a grid of `width x height` cells over the
+    /// camera's image, one primary ray through a random point of each cell to its first hit
+    /// `x` (shading normal `n`, albedo `ρ`); there the first bounce traced with `rays` paths
+    /// (at each vertex a cosine-weighted and a light sample by multiple importance sampling,
+    /// as `view reference` traces) against the bake's, `n` dotted with T's coefficients under the file's light
+    /// (its direct irradiance at the sender points, pull-pushed) expanded over all levels
+    /// (Eq. 6). Both times `ρ`, averaged over the grid's cells (a miss adds zero): the image's
+    /// first-bounce radiance times `π`, so the comparison weighs the surfaces as an image does.
+    pub struct CameraCheck {
+        /// The grid of primary rays, and the cosine rays per cell.
+        pub width: u32,
+        pub height: u32,
+        pub rays: u32,
+        /// Cells whose primary ray hit the scene.
+        pub cells_hit: u64,
+        /// Per colour channel, the mean traced and baked first bounce (times the albedo).
+        pub traced: [f64; 3],
+        pub baked: [f64; 3],
+        /// `1 - Y(baked) / Y(traced)` with `Y` the Rec. 709 luminance: the share of the first
+        /// bounce the image lacks (negative: the image is that much too bright), and the
+        /// standard error of that share from the cells' differences.
+        pub share: f64,
+        pub std_error: f64,
+        /// The same for every bounce: the traced paths' whole indirect irradiance (next-event
+        /// estimation at every vertex, roulette) against what a frame of the viewer gives
+        /// there under the same emission (`S e`, with the finer receivers' bounces chained
+        /// through level 0 where the file leaves them to the viewer), expanded with Eq. 6.
+        pub traced_all: [f64; 3],
+        pub baked_all: [f64; 3],
+        pub share_all: f64,
+        pub std_error_all: f64,
+    }
+}

@@ -17,6 +17,7 @@ pub mod manifest;
 pub mod mesh;
 pub mod mesh_caster;
 pub mod obj;
+pub mod one_bounce;
 pub mod raycast;
 pub mod sampling;
 pub mod scene;

@@ -638,3 +638,64 @@ fn finer_points_without_coarser_support_are_computed_and_keep_their_links() {
     );
     eprintln!("{orphans} points without coarser support, all with links");
 }
+
+/// The bake's check of its first bounce at the scene's camera (`TCAM`). Inside the closed
+/// sphere with the light at its centre every point's direct irradiance is `I / R²` and its
+/// first bounce `ρ I / R²`; the camera sits at the centre, so every primary ray hits and the
+/// albedo-weighted mean is `ρ² I / R²` exactly. The traced figure must be that, with a small
+/// standard error (the light and cosine samples of the estimator see a constant), and T's
+/// within a few percent of it (the Shepard basis reproduces a constant). Every bounce: the
+/// paths' indirect irradiance is `ρ/(1-ρ) I/R²` (bounce `k` carries `ρ^k I/R²`), so the
+/// albedo-weighted mean is `ρ²/(1-ρ) I/R²`, of which a one-bounce file lacks the share `ρ`.
+/// Then the same under a thread count of 1: the check is deterministic.
+#[test]
+fn the_camera_check_traces_the_analytic_first_bounce_inside_the_sphere() {
+    let (albedo, radius) = (0.6f64, 2.0f64);
+    let opts = BakeOptions {
+        receiver_levels: Some(4),
+        coarse_count: Some(24),
+        sender_levels: Some(2),
+        bounces: Some(1),
+        gather_rays: Some(64),
+        ..Default::default()
+    };
+    let spec = format!("builtin:sphere?albedo={albedo}&radius={radius}");
+    let check = |threads| {
+        bake_with(&spec, opts.clone(), threads)
+            .contents
+            .transport
+            .expect("transport")
+            .camera_check
+            .expect("the bake checks its first bounce at the camera")
+    };
+    let c = check(2);
+    assert_eq!(c.cells_hit, u64::from(c.width * c.height));
+    let want = albedo * albedo / (radius * radius);
+    for k in 0..3 {
+        let rel = c.traced[k] / want - 1.0;
+        assert!(rel.abs() < 0.01, "traced {:?} against {want}", c.traced);
+    }
+    assert!(c.std_error < 0.005, "standard error {}", c.std_error);
+    assert!(
+        c.share.abs() < 0.05,
+        "T's first bounce {:?} against the traced {:?} (share {})",
+        c.baked,
+        c.traced,
+        c.share
+    );
+    let want_all = want / (1.0 - albedo);
+    for k in 0..3 {
+        let rel = c.traced_all[k] / want_all - 1.0;
+        assert!(
+            rel.abs() < 0.02,
+            "traced {:?} against {want_all}",
+            c.traced_all
+        );
+    }
+    assert!(
+        (c.share_all - albedo).abs() < 0.03,
+        "a one-bounce file lacks {} of the indirect light, not {albedo}",
+        c.share_all
+    );
+    assert_eq!(check(1), c, "the check depends on the thread count");
+}

@@ -101,10 +101,7 @@ impl Camera {
 
     /// Unit vectors `(right, up, back)` of the camera frame (right-handed, looking down -back).
     pub fn frame(&self) -> (Vec3, Vec3, Vec3) {
-        let back = (self.position - self.target).normalize();
-        let right = self.up.cross(back).normalize();
-        let up = back.cross(right);
-        (right, up, back)
+        mlt_format::camera::frame(self.position, self.target, self.up)
     }
 
     pub fn aspect(&self) -> f32 {
@@ -114,11 +111,12 @@ impl Camera {
     /// The unit direction of the primary ray through the point `(px, py)` of the image, in
     /// pixels from the top-left corner (use `px + 0.5, py + 0.5` for a pixel's centre).
     pub fn ray_direction(&self, px: f32, py: f32) -> Vec3 {
-        let (right, up, back) = self.frame();
-        let t = (0.5 * self.fovy_deg.to_radians()).tan();
-        let sx = (2.0 * px / self.width as f32 - 1.0) * t * self.aspect();
-        let sy = (1.0 - 2.0 * py / self.height as f32) * t;
-        (right * sx + up * sy - back).normalize()
+        mlt_format::camera::ray_direction(
+            self.frame(),
+            self.fovy_deg,
+            (self.width, self.height),
+            (px, py),
+        )
     }
 
     /// World to view transform (right-handed, camera looking down -z).

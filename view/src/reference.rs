@@ -20,8 +20,8 @@
 //!   path `x → y1 → y2 → ...` contributes `Σ_k β_k E_d(y_k)` with `β_k = ρ(y1) ⋯ ρ(y_k)`
 //!   (next-event estimation toward the light at every vertex), where each vertex's one-bounce
 //!   term is combined by multiple importance sampling with a sample traced from the light
-//!   (see `Tracer::indirect_sample`; without it the bright spot that a point light close to a
-//!   wall makes dominates the noise). Russian roulette from bounce
+//!   (`mlt_scenes::one_bounce`, which the bake's check of its first bounce shares; without it
+//!   the bright spot that a point light close to a wall makes dominates the noise). Russian roulette from bounce
 //!   [`ReferenceOptions::rr_start`] on, survival probability `q = max(β)` (capped at 1) and
 //!   `β /= q` on survival, keeps the estimator unbiased; a hard cap of
 //!   [`ReferenceOptions::max_bounces`] bounds the work (the bias it leaves is the energy of the
@@ -48,7 +48,8 @@ use std::time::Instant;
 
 use glam::Vec3;
 use mlt_relight::Light;
-use mlt_scenes::sampling::{cosine_hemisphere, tangent_frame};
+use mlt_scenes::one_bounce::{OneBounce, PointLight};
+use mlt_scenes::sampling::tangent_frame;
 use mlt_scenes::RayCaster;
 use rayon::prelude::*;
 
@@ -237,15 +238,18 @@ fn positive(x: f32) -> bool {
 // stay the reference's own, so the reference shares no sample with the bake.
 
 /// A cosine-distributed direction about `n` (pdf `cos θ / π`).
+#[cfg(test)]
 fn cosine_sample(n: Vec3, rng: &mut Pcg32) -> Vec3 {
     let (u1, u2) = (rng.next_f32(), rng.next_f32());
-    cosine_hemisphere(n, u1, u2)
+    mlt_scenes::sampling::cosine_hemisphere(n, u1, u2)
 }
 
 /// The integrator's fixed state.
 struct Tracer<'a> {
     caster: &'a dyn RayCaster,
     light: &'a Light,
+    /// The one-bounce estimator at a path's vertices (shared with the bake's camera check).
+    one: OneBounce<'a>,
     eps: f32,
     opts: ReferenceOptions,
 }
@@ -258,51 +262,28 @@ impl<'a> Tracer<'a> {
         opts: &ReferenceOptions,
     ) -> Result<Tracer<'a>, ReferenceError> {
         opts.check()?;
+        let point = PointLight {
+            position: light.position,
+            irradiance: Box::new(move |x, n| light.irradiance(x, n)),
+        };
         Ok(Tracer {
             caster,
             light,
+            one: OneBounce::new(caster, point),
             eps: caster.ray_epsilon(),
             opts: *opts,
         })
     }
 
-    /// Direct irradiance at a surface point with shading normal `ns`, leaving on the side of
-    /// the (ray-facing) geometric normal `ng`: the light model times one shadow ray.
+    /// Direct irradiance at a surface point ([`OneBounce::direct`]).
     fn direct(&self, x: Vec3, ns: Vec3, ng: Vec3) -> [f32; 3] {
-        if (self.light.position - x).dot(ng) <= 0.0 {
-            return [0.0; 3];
-        }
-        let e = self.light.irradiance(x, ns);
-        if e == [0.0; 3] || self.caster.occluded(x + ng * self.eps, self.light.position) {
-            return [0.0; 3];
-        }
-        e
+        self.one.direct(x, ns, ng)
     }
 
-    /// Area-measure density with which a ray from the light, uniform over the sphere of
-    /// directions, first hits the surface point `y` (geometric normal `ng`, lit side).
-    fn light_pdf(&self, y: Vec3, ng: Vec3) -> f32 {
-        let d = self.light.position - y;
-        let d2 = d.length_squared();
-        if !positive(d2) {
-            return 0.0;
-        }
-        let cos = (ng.dot(d) / d2.sqrt()).max(0.0);
-        cos / (4.0 * std::f32::consts::PI * d2)
-    }
-
-    /// One path's estimate of the indirect irradiance `E_i(x, ns)` (module docs).
-    ///
-    /// At every vertex `p` of the path (from `x` on) the one-bounce term
-    /// `T(p) = ∫ ρ(y)/π E_d(y) cos θ_p dω` is estimated with multiple importance sampling
-    /// (Veach 1997, balance heuristic) of two samples `y`: the cosine-sampled next vertex
-    /// (density `p_G = cos θ_p/π · cos θ_y/|p-y|²` in area measure) and the first hit of a
-    /// ray leaving the light uniformly (`p_L = cos θ_y,l / (4π |y-l|²)`), each contributing
-    /// `f(y) / (p_G(y) + p_L(y))`. The light sample catches the bright spots a point light makes
-    /// on nearby surfaces (a light just below a ceiling), which cosine sampling finds too
-    /// rarely; the cosine sample covers `y` close to `p` (corners). The path then continues
-    /// from the cosine sample with throughput `β *= ρ(y)`, so
-    /// `E_i(x) = Σ_k β_k T(y_k)` with `y_0 = x`, `β_0 = 1`, over at most `bounces` bounces.
+    /// One path's estimate of the indirect irradiance `E_i(x, ns)` (module docs): the
+    /// one-bounce term at every vertex by multiple importance sampling of a cosine-sampled
+    /// direction and a ray from the light, over at most `bounces` bounces
+    /// ([`OneBounce::path`]).
     fn indirect_sample(
         &self,
         x: Vec3,
@@ -311,104 +292,11 @@ impl<'a> Tracer<'a> {
         bounces: u32,
         rng: &mut Pcg32,
     ) -> [f32; 3] {
-        let mut acc = [0.0f32; 3];
-        let mut beta = [1.0f32; 3];
-        let (mut p, mut ns, mut ng) = (x, ns, ng);
-        let inv_pi = std::f32::consts::FRAC_1_PI;
-        for bounce in 1..=bounces {
-            // Light-sampled one-bounce term.
-            let t = self.light_sample(p, ns, ng, rng);
-            for c in 0..3 {
-                acc[c] += beta[c] * t[c];
-            }
-            // Cosine-sampled next vertex: its share of the one-bounce term, then continue.
-            let dir = cosine_sample(ns, rng);
-            let cos_p = dir.dot(ns);
-            if dir.dot(ng) <= 0.0 || !positive(cos_p) {
-                // Below the geometric surface (shading normal leaning away): no light.
-                break;
-            }
-            let Some(hit) = self
-                .caster
-                .intersect(p + ng * self.eps, dir, 0.0, f32::INFINITY)
-            else {
-                break;
-            };
-            for (b, r) in beta.iter_mut().zip(hit.albedo) {
-                *b *= r;
-            }
-            let ed = self.direct(hit.position, hit.shading_normal, hit.geometric_normal);
-            if ed != [0.0; 3] {
-                let d2 = (hit.position - (p + ng * self.eps)).length_squared();
-                let cos_y = hit.geometric_normal.dot(-dir).max(0.0);
-                let p_g = cos_p * inv_pi * cos_y / d2;
-                let p_l = self.light_pdf(hit.position, hit.geometric_normal);
-                let w = if p_g + p_l > 0.0 && p_g.is_finite() {
-                    p_g / (p_g + p_l)
-                } else {
-                    1.0
-                };
-                for c in 0..3 {
-                    acc[c] += beta[c] * ed[c] * w;
-                }
-            }
-            if bounce >= self.opts.rr_start {
-                let q = beta[0].max(beta[1]).max(beta[2]).min(1.0);
-                if q.is_nan() || q <= 0.0 || rng.next_f32() >= q {
-                    break;
-                }
-                for b in &mut beta {
-                    *b /= q;
-                }
-            }
-            p = hit.position;
-            ns = hit.shading_normal;
-            ng = hit.geometric_normal;
-        }
-        acc
-    }
-
-    /// The light-sampled half of the one-bounce term at `p` (see [`Self::indirect_sample`]):
-    /// `f(y) / (p_G(y) + p_L(y))` for `y` the first hit of a uniformly random ray from the
-    /// light, with `f(y) = ρ(y)/π E_d(y) cos θ_p cos θ_y / |p-y|² V(p, y)`.
-    fn light_sample(&self, p: Vec3, ns: Vec3, ng: Vec3, rng: &mut Pcg32) -> [f32; 3] {
-        let (u1, u2) = (rng.next_f32(), rng.next_f32());
-        let z = 1.0 - 2.0 * u1;
-        let r = (1.0 - z * z).max(0.0).sqrt();
-        let phi = std::f32::consts::TAU * u2;
-        let w = Vec3::new(r * phi.cos(), r * phi.sin(), z);
-        let Some(y) = self
-            .caster
-            .intersect(self.light.position, w, 0.0, f32::INFINITY)
-        else {
-            return [0.0; 3];
-        };
-        let po = p + ng * self.eps;
-        let yo = y.position + y.geometric_normal * self.eps;
-        let d = y.position - po;
-        let d2 = d.length_squared();
-        if !positive(d2) {
-            return [0.0; 3];
-        }
-        let dir = d / d2.sqrt();
-        let cos_p = ns.dot(dir);
-        let cos_y = y.geometric_normal.dot(-dir);
-        if !(positive(cos_p) && positive(cos_y) && positive(ng.dot(dir))) {
-            return [0.0; 3];
-        }
-        let ed = self.light.irradiance(y.position, y.shading_normal);
-        if ed == [0.0; 3] || self.caster.occluded(po, yo) {
-            return [0.0; 3];
-        }
-        let inv_pi = std::f32::consts::FRAC_1_PI;
-        let g = cos_p * cos_y / d2;
-        let p_g = cos_p * inv_pi * cos_y / d2;
-        let p_l = self.light_pdf(y.position, y.geometric_normal);
-        let denom = p_g + p_l;
-        if !positive(denom) || !denom.is_finite() {
-            return [0.0; 3];
-        }
-        std::array::from_fn(|c| y.albedo[c] * inv_pi * ed[c] * g / denom)
+        self.one
+            .path(x, ns, ng, (bounces, self.opts.rr_start), &mut || {
+                rng.next_f32()
+            })
+            .all
     }
 
     /// One estimate of the indirect *vector* irradiance `E_i(x) = ∫_Ω L_i(ω) ω dω` over the
@@ -434,15 +322,7 @@ impl<'a> Tracer<'a> {
         let inv_2pi = 0.5 * inv_pi;
         let po = x + n * self.eps;
         // Light-sampled one-bounce term.
-        let (u1, u2) = (rng.next_f32(), rng.next_f32());
-        let z = 1.0 - 2.0 * u1;
-        let r = (1.0 - z * z).max(0.0).sqrt();
-        let phi = std::f32::consts::TAU * u2;
-        let w = Vec3::new(r * phi.cos(), r * phi.sin(), z);
-        if let Some(y) = self
-            .caster
-            .intersect(self.light.position, w, 0.0, f32::INFINITY)
-        {
+        if let Some(y) = self.one.light_ray((rng.next_f32(), rng.next_f32())) {
             let d = y.position - po;
             let d2 = d.length_squared();
             if positive(d2) {
@@ -453,7 +333,7 @@ impl<'a> Tracer<'a> {
                     let yo = y.position + y.geometric_normal * self.eps;
                     if ed != [0.0; 3] && !self.caster.occluded(po, yo) {
                         let p_g = inv_2pi * cos_y / d2;
-                        let p_l = self.light_pdf(y.position, y.geometric_normal);
+                        let p_l = self.one.light_pdf(y.position, y.geometric_normal);
                         let denom = p_g + p_l;
                         if positive(denom) && denom.is_finite() {
                             let g = cos_y / d2 / denom;
@@ -485,7 +365,7 @@ impl<'a> Tracer<'a> {
             let d2 = (hit.position - po).length_squared();
             let cos_y = hit.geometric_normal.dot(-dir).max(0.0);
             let p_g = inv_2pi * cos_y / d2;
-            let p_l = self.light_pdf(hit.position, hit.geometric_normal);
+            let p_l = self.one.light_pdf(hit.position, hit.geometric_normal);
             let wmis = if p_g + p_l > 0.0 && p_g.is_finite() {
                 p_g / (p_g + p_l)
             } else {

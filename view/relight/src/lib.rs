@@ -5,8 +5,8 @@
 //! - [`relight`]: the [`Relight`] interface, the [`Frame`] it produces and its [`StageTimes`];
 //! - [`cpu`]: [`CpuRelighter`], the CPU implementation: direct light by shadow rays, then the
 //!   three operators below, built once per file;
-//! - [`support_average`]: the direct light averaged over a sender's basis function, the
-//!   sample of a light close to the surface;
+//! - [`support_average`] (from `mlt_format`, which the bake's estimates share): the direct
+//!   light averaged over a sender's basis function, the sample of a light close to the surface;
 //! - [`pull_push_op`]: the pull-push projection `e = P-dagger E` (section 2.1) with precomputed
 //!   weights;
 //! - [`receiver_links`]: `i = S e` receiver-major, the file's half floats converted in the
@@ -31,7 +31,7 @@ pub mod light;
 pub mod pull_push_op;
 pub mod receiver_links;
 pub mod relight;
-pub mod support_average;
+pub use mlt_format::support_average;
 
 pub use bounce_feedback::BounceFeedbackOp;
 pub use cpu::{CpuRelighter, LoadStats};

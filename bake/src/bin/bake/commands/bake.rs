@@ -79,7 +79,10 @@ fn report(args: &BakeArgs, output: &Path, size: u64, out: &BakeOutput) -> Result
                 transport_table(&t.meta, out.transport_timings.as_ref())
             );
             if let Some(r) = &t.report {
-                eprint!("{}", estimate_table(r, t.drop.as_ref()));
+                eprint!(
+                    "{}",
+                    estimate_table(r, t.drop.as_ref(), t.camera_check.as_ref())
+                );
             }
         }
     }

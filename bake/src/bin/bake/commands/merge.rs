@@ -59,7 +59,10 @@ pub fn run(args: &MergeArgs) -> Result<()> {
         if let Some(t) = &merged.transport {
             eprint!("{}", transport_table(&t.meta, None));
             if let Some(r) = &t.report {
-                eprint!("{}", estimate_table(r, t.drop.as_ref()));
+                eprint!(
+                    "{}",
+                    estimate_table(r, t.drop.as_ref(), t.camera_check.as_ref())
+                );
             }
         }
         eprintln!(

@@ -30,10 +30,10 @@ use std::f64::consts::TAU;
 use std::sync::OnceLock;
 
 use glam::Vec3;
-use mlt_format::kernel::weight;
-use mlt_format::shepard::{IndexedBasis, MIN_WEIGHT_SUM};
 
-use crate::light::{Cone, Light};
+use crate::kernel::weight;
+use crate::light_model::{Cone, Light};
+use crate::shepard::{IndexedBasis, MIN_WEIGHT_SUM};
 
 /// Within this many support radii of the light a sample is wholly the support average, as
 /// far as the distance goes.
@@ -317,7 +317,7 @@ fn cone_average(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use mlt_format::test_support::plane_basis;
+    use crate::test_support::plane_basis;
 
     fn light_at(x: f32, y: f32, h: f32) -> Light {
         Light::point(Vec3::new(x, y, h), [1.0, 2.0, 0.5]).unwrap()

@@ -1,0 +1,321 @@
+//! The bake's check of its own light where the scene's camera looks ([`CameraCheck`], the
+//! file's `TCAM` section).
+//!
+//! The other estimates of the bake weigh the basis points, each by the area its function
+//! stands for. An image weighs surfaces by how much of the view they fill and by their albedo,
+//! and a shortfall at the points can have the other sign in an image (a point light near a
+//! wall the camera does not see). This check measures what the image will show: it traces the
+//! indirect light at the pixels of the scene's camera and compares it with what the file gives
+//! there.
+//!
+//! Through a grid of `width x height` cells over the camera's image (the camera's aspect,
+//! [`GRID_WIDTH`] cells across), one primary ray through a uniformly random point of each cell
+//! (a box filter over the cell, as `view reference` filters a pixel) to its first hit `x`
+//! (shading normal `n`, albedo `ρ`). There:
+//!
+//! - the traced indirect irradiance, [`RAYS`] paths of the estimator `view reference` uses
+//!   (`mlt_scenes::one_bounce`: at every vertex the one-bounce term `∫ ρ(y)/π E_d(y) cos θ dω`
+//!   by multiple importance sampling of a cosine-weighted direction and a ray from the light,
+//!   so a hot spot near the light is found; the path continues from the cosine sample, with
+//!   roulette): the first vertex's term alone is the first bounce `E_1(x)` (the rendering
+//!   equation with one bounce, Eq. 1 of the paper for diffuse surfaces), the sum every bounce;
+//! - the file's first bounce `n · Σ_i (T e)_i B_i(x, n)`: T's coefficients under the
+//!   representative emission `e` (the file light's direct irradiance at the sender points,
+//!   sampled and pull-pushed onto the sender levels as the viewer does) expanded over every
+//!   level (Eq. 6); and its every bounce, the same of what a frame of the viewer gives under
+//!   `e` ([`frame_coefficients`]: `S e`, and the finer receivers' later bounces chained
+//!   through level 0 where the file leaves them to the viewer).
+//!
+//! Each times `ρ`, averaged over the cells, a miss adding zero (the image's mean radiance,
+//! times `π`). A share `1 - Y(file) / Y(traced)` (Rec. 709 luminance) is what the image lacks
+//! (negative: too bright). The first bounce's holds T's dropped links, the projection of the
+//! direct light onto the senders and the basis' reconstruction; every bounce's also the later
+//! bounces (their truncation and the paths that compute them). Neither holds the flat basis
+//! the viewer splats, the viewer's shadow rays over a disk around the light (the emission here
+//! has one shadow ray per sender point), nor the feedback step the viewer adds to files whose
+//! bounces were chained (`--level0-paths 0`). Each share's standard error is that of the mean
+//! of the cells' differences (the cells are independent samples of the image, so it holds the
+//! primary rays' noise, the paths' and the per-pixel basis error's).
+//!
+//! Each cell draws from its own stream `(seed, cell)` and the sums run in cell order, so the
+//! check is the same for any thread count.
+
+use glam::Vec3;
+use mlt_format::light_model::Light;
+use mlt_format::links::{Links, LINK_DIM};
+use mlt_format::meta::{CameraCheck, CameraInfo};
+use mlt_format::IndexedBasis;
+use mlt_scenes::one_bounce::{OneBounce, PointLight};
+use mlt_scenes::RayCaster;
+use rayon::prelude::*;
+
+use crate::drop_estimate::coefficients;
+use crate::refine::ReceiverLinks;
+use crate::rng::{Rng, Stream};
+
+/// Cells across the grid of primary rays (its height follows the camera's aspect).
+pub const GRID_WIDTH: u32 = 160;
+/// Paths per cell for the traced light.
+pub const RAYS: u32 = 32;
+/// The paths' bounce cap and the bounce from which roulette ends them (`view reference`'s
+/// defaults).
+const PATH_BOUNCES: (u32, u32) = (1024, 3);
+
+/// Rec. 709 luminance weights.
+const LUMA: [f64; 3] = [0.2126, 0.7152, 0.0722];
+
+/// The check's resolution and seed.
+#[derive(Clone, Copy, Debug)]
+pub struct CheckSettings {
+    /// Cells across (the height follows the camera's aspect) and cosine rays per cell.
+    pub width: u32,
+    pub rays: u32,
+    pub seed: u64,
+}
+
+impl CheckSettings {
+    /// [`GRID_WIDTH`] cells across, [`RAYS`] rays per cell, `seed`.
+    pub fn new(seed: u64) -> CheckSettings {
+        CheckSettings {
+            width: GRID_WIDTH,
+            rays: RAYS,
+            seed,
+        }
+    }
+}
+
+/// One cell's traced and baked first bounce and the same of every bounce, each times the
+/// albedo at its primary hit: `[traced first, baked first, traced all, baked all]`.
+type Cell = Option<[[f64; 3]; 4]>;
+
+/// What a frame of the viewer gives at the receivers (9 floats per point): `i = S e` from the
+/// stored `links` under the sender coefficients `e`, and with `fine` the finer receivers'
+/// bounces 2 and later chained through the level-0 senders, `i_r += sum_j S_rj (n_j . i_j)`
+/// over level-0 senders `j` and receivers `r` above level 0 (the viewer's fine bounces, for a
+/// file whose bounces ran on the coarsest receivers only).
+pub fn frame_coefficients(ib: &IndexedBasis, links: &Links, e: &[f32], fine: bool) -> Vec<f32> {
+    let b = &ib.basis;
+    let n0 = b.level_range(0).len();
+    let mut i = vec![0.0f32; b.len() * LINK_DIM];
+    let columns = |f: &mut dyn FnMut(usize, usize, [f32; LINK_DIM])| {
+        for (slot, &s) in links.sender_ids.iter().enumerate() {
+            let (a, z) = (
+                links.offsets[slot] as usize,
+                links.offsets[slot + 1] as usize,
+            );
+            for k in a..z {
+                f(
+                    s as usize,
+                    links.receiver_ids[k] as usize,
+                    links.value(k, slot),
+                );
+            }
+        }
+    };
+    columns(&mut |s, r, v| {
+        if let (Some(es), Some(out)) = (
+            e.get(3 * s..3 * s + 3),
+            i.get_mut(r * LINK_DIM..(r + 1) * LINK_DIM),
+        ) {
+            for k in 0..LINK_DIM {
+                out[k] += es[k / 3] * v[k];
+            }
+        }
+    });
+    if fine {
+        let y: Vec<[f32; 3]> = (0..n0)
+            .map(|j| along(&i[j * LINK_DIM..(j + 1) * LINK_DIM], b.normals[j]))
+            .collect();
+        columns(&mut |s, r, v| {
+            if s < n0 && r >= n0 && r < b.len() {
+                let out = &mut i[r * LINK_DIM..(r + 1) * LINK_DIM];
+                for k in 0..LINK_DIM {
+                    out[k] += y[s][k / 3] * v[k];
+                }
+            }
+        });
+    }
+    i
+}
+
+/// Per colour channel, `n . v_c` of a point's vector irradiance `v` (9 floats, RGB-major).
+fn along(v: &[f32], n: [f32; 3]) -> [f32; 3] {
+    std::array::from_fn(|c| n[0] * v[3 * c] + n[1] * v[3 * c + 1] + n[2] * v[3 * c + 2])
+}
+
+/// The check at `camera` under `light` of `t` (every receiver's row of T, with the
+/// representative emission it was refined under) for the first bounce, and of `frame` (the
+/// coefficients a frame of the viewer gives under that emission, [`frame_coefficients`]) for
+/// every bounce; `None` when the camera is degenerate or the settings ask for no rays.
+pub fn camera_check(
+    ib: &IndexedBasis,
+    caster: &dyn RayCaster,
+    light: &Light,
+    camera: &CameraInfo,
+    (t, frame): (&ReceiverLinks, &[f32]),
+    settings: CheckSettings,
+) -> Option<CameraCheck> {
+    let (w, rays) = (settings.width, settings.rays);
+    if w == 0 || rays == 0 || camera.width == 0 || camera.height == 0 {
+        return None;
+    }
+    camera.ray_direction(0.5 * camera.width as f32, 0.5 * camera.height as f32)?;
+    let h = ((w as f64 * camera.height as f64 / camera.width as f64).round() as u32).max(1);
+    let first = coefficients(ib.basis.len(), t);
+    let levels = ib.levels();
+    let one = OneBounce::new(
+        caster,
+        PointLight {
+            position: light.position,
+            irradiance: Box::new(|x, n| light.irradiance(x, n)),
+        },
+    );
+    let eye = Vec3::from(camera.position);
+    let (sx, sy) = (
+        camera.width as f32 / w as f32,
+        camera.height as f32 / h as f32,
+    );
+    let cells: Vec<Cell> = (0..w * h)
+        .into_par_iter()
+        .map(|c| {
+            let mut rng = Rng::new(settings.seed, Stream::Camera, c as u64);
+            let px = ((c % w) as f32 + rng.next_f32()) * sx;
+            let py = ((c / w) as f32 + rng.next_f32()) * sy;
+            let dir = camera.ray_direction(px, py)?;
+            let hit = caster.intersect(eye, dir, 0.0, f32::INFINITY)?;
+            let (x, n, ng) = (hit.position, hit.shading_normal, hit.geometric_normal);
+            let (mut t1, mut ta) = ([0.0f64; 3], [0.0f64; 3]);
+            for _ in 0..rays {
+                let p = one.path(x, n, ng, PATH_BOUNCES, &mut || rng.next_f32());
+                for k in 0..3 {
+                    t1[k] += p.first[k] as f64;
+                    ta[k] += p.all[k] as f64;
+                }
+            }
+            let rho = hit.albedo.map(f64::from);
+            let baked = |alpha: &[f32]| {
+                let mut v = [0.0f32; LINK_DIM];
+                ib.reconstruct(alpha, LINK_DIM, 0..levels, x.into(), n.into(), &mut v);
+                let e = along(&v, n.into());
+                std::array::from_fn(|k| rho[k] * e[k] as f64)
+            };
+            let mean = |s: [f64; 3]| std::array::from_fn(|k| rho[k] * s[k] / rays as f64);
+            Some([mean(t1), baked(&first), mean(ta), baked(frame)])
+        })
+        .collect();
+    Some(summarise(&cells, (w, h, rays)))
+}
+
+/// The share one side of the cells lacks against the other (`traced` at index `a`, `baked` at
+/// `a + 1`) and its standard error, from the cells' luminance differences.
+fn share(cells: &[Cell], a: usize, traced: &[f64; 3], baked: &[f64; 3]) -> (f64, f64) {
+    let count = cells.len().max(1) as f64;
+    let luma = |v: &[f64; 3]| (0..3).map(|k| LUMA[k] * v[k]).sum::<f64>();
+    let (yt, yb) = (luma(traced), luma(baked));
+    if yt <= 0.0 {
+        return (0.0, 0.0);
+    }
+    let mean_d = yt - yb;
+    let var: f64 = cells
+        .iter()
+        .map(|c| c.map_or(0.0, |v| luma(&v[a]) - luma(&v[a + 1])) - mean_d)
+        .map(|d| d * d)
+        .sum::<f64>()
+        / (count - 1.0).max(1.0);
+    // The share's error is the mean difference's, over the traced mean.
+    (mean_d / yt, (var / count).sqrt() / yt)
+}
+
+/// The means over all cells (a miss counts as zero), the shares and their standard errors.
+fn summarise(cells: &[Cell], (width, height, rays): (u32, u32, u32)) -> CameraCheck {
+    let count = cells.len().max(1) as f64;
+    let mut m = [[0.0f64; 3]; 4];
+    let mut cells_hit = 0u64;
+    for v in cells.iter().flatten() {
+        cells_hit += 1;
+        for (acc, x) in m.iter_mut().zip(v) {
+            for k in 0..3 {
+                acc[k] += x[k] / count;
+            }
+        }
+    }
+    let (share_first, error_first) = share(cells, 0, &m[0], &m[1]);
+    let (share_all, error_all) = share(cells, 2, &m[2], &m[3]);
+    CameraCheck {
+        width,
+        height,
+        rays,
+        cells_hit,
+        traced: m[0],
+        baked: m[1],
+        share: share_first,
+        std_error: error_first,
+        traced_all: m[2],
+        baked_all: m[3],
+        share_all,
+        std_error_all: error_all,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_share_is_what_the_baked_light_lacks_and_its_error_shrinks_with_the_cells() {
+        // Half the cells see twice the light they are baked with, half miss; every bounce is
+        // baked right.
+        let cells: Vec<Cell> = (0..100)
+            .map(|i| (i % 2 == 0).then_some([[2.0; 3], [1.0; 3], [3.0; 3], [3.0; 3]]))
+            .collect();
+        let c = summarise(&cells, (10, 10, 1));
+        assert_eq!(c.cells_hit, 50);
+        assert!((c.traced[0] - 1.0).abs() < 1e-12 && (c.baked[1] - 0.5).abs() < 1e-12);
+        assert!((c.share - 0.5).abs() < 1e-12);
+        // Differences 1 and 0 in equal numbers: sd 0.5025, over sqrt(100) and the mean 1.
+        assert!((c.std_error - 0.050252).abs() < 1e-5, "{}", c.std_error);
+        assert!(c.share_all.abs() < 1e-12 && c.std_error_all < 1e-12);
+        // Too bright: a negative share.
+        let cells: Vec<Cell> = vec![Some([[1.0; 3], [1.25; 3], [1.0; 3], [0.5; 3]]); 16];
+        let c = summarise(&cells, (4, 4, 1));
+        assert!((c.share + 0.25).abs() < 1e-12 && c.std_error < 1e-12);
+        assert!((c.share_all - 0.5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_frame_adds_the_finer_receivers_bounces_through_level_0() {
+        use mlt_format::links::SenderLinks;
+        use mlt_format::test_support::plane_basis;
+        let ib = plane_basis(2, 2);
+        let b = &ib.basis;
+        let (n0, len) = (b.level_range(0).len(), b.len());
+        assert!(n0 >= 1 && len > n0);
+        // Sender 0 lights itself (1 along +z per channel) and the first finer point (0.5).
+        let unit = |a: f32| {
+            let mut v = [0.0f32; LINK_DIM];
+            for c in 0..3 {
+                v[3 * c + 2] = a;
+            }
+            v
+        };
+        let col = [(0u32, unit(1.0)), (n0 as u32, unit(0.5))];
+        let (links, _) = Links::pack(
+            len as u32,
+            n0 as u32,
+            [SenderLinks {
+                sender: 0,
+                links: &col,
+            }],
+        );
+        let mut e = vec![0.0f32; 3 * n0];
+        e[..3].copy_from_slice(&[2.0, 2.0, 2.0]);
+        let plain = frame_coefficients(&ib, &links, &e, false);
+        let fine = frame_coefficients(&ib, &links, &e, true);
+        let z = |v: &[f32], p: usize| v[p * LINK_DIM + 2];
+        assert_eq!((z(&plain, 0), z(&plain, n0)), (2.0, 1.0));
+        // Level 0's irradiance 2 (normal +z) re-emitted through the 0.5 link: 1 more; level 0
+        // itself gets nothing more.
+        assert_eq!(b.normals[0], [0.0, 0.0, 1.0]);
+        assert_eq!((z(&fine, 0), z(&fine, n0)), (2.0, 2.0));
+    }
+}
