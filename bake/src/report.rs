@@ -279,7 +279,7 @@ pub fn estimate_table(
             if let Some(d) = drop {
                 let _ = writeln!(
                     o,
-                    "              of which links of T dropped, at the receivers: {} (under the {})",
+                    "              links of T dropped, at the receivers: {} (under the {}; part of the camera's figure, not added)",
                     signed_pct(d.share),
                     d.emission
                 );
