@@ -249,7 +249,7 @@ struct TransportStage {
 /// The transport (section 3): none for a basis-only bake, T's rows of one shard for a shard
 /// bake (whose file key mixes in the shard), else S. `light` is the representative emission
 /// of the estimate of what refinement drops (`drop_estimate`); with `camera`, the scene's
-/// camera, it is also what the first bounce is checked under (`camera_check`).
+/// camera, it is also what the light is checked under (`camera_check`).
 #[allow(clippy::too_many_arguments)]
 fn transport_stage(
     mut ib: IndexedBasis,

@@ -227,7 +227,7 @@ pub fn total_with_drop(
 }
 
 /// The end of the bake's report: the bounce count chosen, the error it estimates it committed
-/// to (with the first bounce checked at the scene's camera, `TCAM`, and what refinement dropped
+/// to (with the light checked at the scene's camera, `TCAM`, and what refinement dropped
 /// from T, `TDRP`, when the file has them), and what the file leaves out (the `TRPT` section).
 pub fn estimate_table(
     r: &TransportReport,

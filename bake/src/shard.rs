@@ -15,8 +15,8 @@
 //! Where the bake traces the level-0 receivers' later bounces (`--level0-paths`), the paths
 //! end in T's expansion over every receiver, which no shard has: the merge traces them, with
 //! the scene (`bake merge --scene SCENE`), from the merged T. The shard section's fields for
-//! traced rows stay empty. The check of the first bounce at the scene's camera
-//! (`camera_check`) traces the scene too: a merge with the scene computes it from the merged T,
+//! traced rows stay empty. The check of the light at the scene's camera (`camera_check`)
+//! traces the scene too: a merge with the scene computes it from the merged T,
 //! as the single bake does; one without leaves the file's `TCAM` section out.
 
 use mlt_format::light_model::Light;
@@ -257,14 +257,21 @@ pub fn merge(
         };
         trace_level0_bounces(ib, caster, &s0.params, policy, &mut t, obs);
     }
-    // The first-bounce check at the camera traces the scene: only with it, as a single bake.
-    let light = Light::from_info(&first.meta.light)
-        .map_err(|e| BakeError::Merge(format!("the shards' light: {e}")))?;
-    let check = caster.map(|caster| CheckScene {
-        caster,
-        camera: &first.meta.camera,
-        light: &light,
-    });
+    // The check of the light at the camera traces the scene: only with it, as a single bake.
+    let light = match caster {
+        Some(_) => Some(
+            Light::from_info(&first.meta.light)
+                .map_err(|e| BakeError::Merge(format!("the shards' light: {e}")))?,
+        ),
+        None => None,
+    };
+    let check = caster
+        .zip(light.as_ref())
+        .map(|(caster, light)| CheckScene {
+            caster,
+            camera: &first.meta.camera,
+            light,
+        });
     let out = finish_transport(ib, t, rstats, s0.params.clone(), policy, 0.0, check, obs)?;
     for w in &out.warnings {
         obs.warn(w);

@@ -66,7 +66,7 @@ impl Default for BouncePolicy {
     }
 }
 
-/// What the check of the first bounce at the scene's camera (`camera_check`) needs beyond T:
+/// What the check of the light at the scene's camera (`camera_check`) needs beyond T and S:
 /// the scene, its camera and its light.
 #[derive(Clone, Copy)]
 pub struct CheckScene<'a> {
@@ -223,7 +223,7 @@ pub fn peak_rss_bytes() -> u64 {
 
 /// Computes S for `ib` (in the current rayon pool; the result does not depend on its size).
 /// `light` gives the representative emission of the estimate of what refinement drops
-/// (`drop_estimate`) and, with `camera`, the check of the first bounce at the camera
+/// (`drop_estimate`) and, with `camera`, the check of the light at the camera
 /// (`camera_check`); neither changes S.
 #[allow(clippy::too_many_arguments)]
 pub fn compute_transport(
@@ -264,8 +264,9 @@ pub fn refinement_warning(drop: &RefinementDrop, epsilon: f32, tolerance: f64) -
     })
 }
 
-/// The check of T's first bounce at the scene's camera (`camera_check`), as a stage of the
-/// bake's report; `None` when the camera is degenerate.
+/// The check of the light at the scene's camera (`camera_check`): T's first bounce and the
+/// viewer's frame from S (`fine`: with the finer receivers' later bounces chained through
+/// level 0), as a stage of the bake's report; `None` when the camera is degenerate.
 fn check_at_camera(
     ib: &IndexedBasis,
     (t, links, fine): (&ReceiverLinks, &Links, bool),
@@ -459,6 +460,9 @@ pub fn finish_transport(
         }
     }
     let p = pack_s(ib, &t, &run.extra, &params, senders)?;
+    // The viewer chains the finer receivers' later bounces for such a file
+    // (`mlt_relight::FineBounceOp::applies_to`: bounces on the coarsest receivers only, more
+    // than one), so its frame, which the check compares, has them.
     let fine = !params.bounces_on_all_receivers && run.report.bounces >= 2;
     let camera_check =
         check.and_then(|c| check_at_camera(ib, (&t, &p.links, fine), c, params.seed, obs));

@@ -43,7 +43,7 @@
 //! 1.5 reader skips it and builds the flat basis by its own rule; 1.7 the optional `TBNC` section
 //! (how the coarsest receivers' later bounces were traced as paths) and those paths' rows in
 //! `TSHD` (`level0_paths` and the owned rows); 1.8 the optional `TCAM` section (the bake's
-//! check of its first bounce at the scene's camera) and, in `TSHD` (its current layout), the
+//! check of its indirect light at the scene's camera) and, in `TSHD` (its current layout), the
 //! representative emission sampled near the light as the viewer samples it (the same fields;
 //! a 1.7 shard's emission is the point samples, so 1.7 shards are refused). From 1.4 the bake
 //! stores each level's points in Morton order; readers do not rely on it.

@@ -55,7 +55,7 @@ pub const TAG_DROP: [u8; 4] = *b"TDRP";
 /// Added in format 1.7: how the level-0 rows' later bounces were computed when the bake
 /// traced them as paths ([`BounceMethod`]); optional, absent for the series' chain.
 pub const TAG_BOUNCES: [u8; 4] = *b"TBNC";
-/// Added in format 1.8: the bake's check of its first bounce at the scene's camera
+/// Added in format 1.8: the bake's check of its indirect light at the scene's camera
 /// ([`CameraCheck`]); optional.
 pub const TAG_CAMERA_CHECK: [u8; 4] = *b"TCAM";
 

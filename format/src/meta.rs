@@ -363,17 +363,19 @@ impl RefinementDrop {
 
 data! {
     /// The `TCAM` section (since format 1.8; absent from older files, basis-only and shard
-    /// files, and from merges without the scene): the bake's check of its own first bounce
+    /// files, and from merges without the scene): the bake's check of its own indirect light
     /// where the scene's camera looks. Through a grid of `width x height` cells over the
     /// camera's image, one primary ray through a random point of each cell to its first hit
-    /// `x` (shading normal `n`, albedo `ρ`); there the first bounce traced with `rays` paths
-    /// (at each vertex a cosine-weighted and a light sample by multiple importance sampling,
-    /// as `view reference` traces) against the bake's, `n` dotted with T's coefficients under the file's light
-    /// (its direct irradiance at the sender points, pull-pushed) expanded over all levels
-    /// (Eq. 6). Both times `ρ`, averaged over the grid's cells (a miss adds zero): the image's
-    /// first-bounce radiance times `π`, so the comparison weighs the surfaces as an image does.
+    /// `x` (shading normal `n`, albedo `ρ`); there `rays` paths traced as `view reference`
+    /// traces them (at each vertex a cosine-weighted and a light sample by multiple importance
+    /// sampling), whose first vertex's term is the first bounce, against the file's: `n`
+    /// dotted with T's coefficients under the file's light (its direct irradiance at the
+    /// sender points, sampled and pull-pushed as the viewer does) expanded over all levels
+    /// (Eq. 6), and the same of every bounce (below). Each times `ρ`, averaged over the grid's
+    /// cells (a miss adds zero): the image's radiance times `π`, so the comparison weighs the
+    /// surfaces as an image does.
     pub struct CameraCheck {
-        /// The grid of primary rays, and the cosine rays per cell.
+        /// The grid of primary rays, and the paths per cell.
         pub width: u32,
         pub height: u32,
         pub rays: u32,
