@@ -157,7 +157,7 @@ pub fn stats_json(file: &Path, file_bytes: u64, out: &BakeOutput) -> serde_json:
         "error_estimate_total": out.contents.transport.as_ref().and_then(|t| {
             t.report
                 .as_ref()
-                .map(|r| crate::report::total_with_drop(r, t.drop.as_ref(), t.camera_check.as_ref()))
+                .map(|r| crate::report::estimate_total(r, t.drop.as_ref(), t.camera_check.as_ref()))
         }),
         "warnings": &out.warnings,
     })

@@ -49,7 +49,7 @@ use mlt_scenes::one_bounce::{OneBounce, PointLight};
 use mlt_scenes::RayCaster;
 use rayon::prelude::*;
 
-use crate::drop_estimate::coefficients;
+use crate::drop_estimate::{along, coefficients};
 use crate::refine::ReceiverLinks;
 use crate::rng::{Rng, Stream};
 
@@ -67,14 +67,14 @@ const LUMA: [f64; 3] = [0.2126, 0.7152, 0.0722];
 /// The check's resolution and seed.
 #[derive(Clone, Copy, Debug)]
 pub struct CheckSettings {
-    /// Cells across (the height follows the camera's aspect) and cosine rays per cell.
+    /// Cells across (the height follows the camera's aspect) and paths per cell.
     pub width: u32,
     pub rays: u32,
     pub seed: u64,
 }
 
 impl CheckSettings {
-    /// [`GRID_WIDTH`] cells across, [`RAYS`] rays per cell, `seed`.
+    /// [`GRID_WIDTH`] cells across, [`RAYS`] paths per cell, `seed`.
     pub fn new(seed: u64) -> CheckSettings {
         CheckSettings {
             width: GRID_WIDTH,
@@ -138,11 +138,6 @@ pub fn frame_coefficients(ib: &IndexedBasis, links: &Links, e: &[f32], fine: boo
     i
 }
 
-/// Per colour channel, `n . v_c` of a point's vector irradiance `v` (9 floats, RGB-major).
-fn along(v: &[f32], n: [f32; 3]) -> [f32; 3] {
-    std::array::from_fn(|c| n[0] * v[3 * c] + n[1] * v[3 * c + 1] + n[2] * v[3 * c + 2])
-}
-
 /// The check at `camera` under `light` of `t` (every receiver's row of T, with the
 /// representative emission it was refined under) for the first bounce, and of `frame` (the
 /// coefficients a frame of the viewer gives under that emission, [`frame_coefficients`]) for
@@ -159,7 +154,7 @@ pub fn camera_check(
     if w == 0 || rays == 0 || camera.width == 0 || camera.height == 0 {
         return None;
     }
-    camera.ray_direction(0.5 * camera.width as f32, 0.5 * camera.height as f32)?;
+    let primary = camera.primary_rays()?;
     let h = ((w as f64 * camera.height as f64 / camera.width as f64).round() as u32).max(1);
     let first = coefficients(ib.basis.len(), t);
     let levels = ib.levels();
@@ -181,7 +176,7 @@ pub fn camera_check(
             let mut rng = Rng::new(settings.seed, Stream::Camera, c as u64);
             let px = ((c % w) as f32 + rng.next_f32()) * sx;
             let py = ((c / w) as f32 + rng.next_f32()) * sy;
-            let dir = camera.ray_direction(px, py)?;
+            let dir = primary.direction(px, py);
             let hit = caster.intersect(eye, dir, 0.0, f32::INFINITY)?;
             let (x, n, ng) = (hit.position, hit.shading_normal, hit.geometric_normal);
             let (mut t1, mut ta) = ([0.0f64; 3], [0.0f64; 3]);

@@ -18,7 +18,7 @@ use mlt_format::light_model::Light;
 use mlt_format::links::LINK_DIM;
 use mlt_format::meta::RefinementDrop;
 use mlt_format::pull_push::pull_push_levels;
-use mlt_format::support_average::{near_weight, SupportAverage};
+use mlt_format::support_average::SupportAverage;
 use mlt_format::IndexedBasis;
 use mlt_scenes::RayCaster;
 use rayon::prelude::*;
@@ -50,16 +50,7 @@ pub fn representative_emission(
         .into_par_iter()
         .flat_map_iter(|j| {
             let (x, n) = (Vec3::from(b.positions[j]), Vec3::from(b.normals[j]));
-            let mut e = light.irradiance(x, n);
-            let near = near_weight(
-                light.position.distance(x),
-                (light.position - x).dot(n),
-                b.radii[j],
-            );
-            if near > 0.0 {
-                let avg = support.irradiance(j, light);
-                e = std::array::from_fn(|c| near * avg[c] + (1.0 - near) * e[c]);
-            }
+            let (mut e, _) = support.sample(j, light);
             if e != [0.0; 3] && caster.occluded(x + n * eps, target) {
                 e = [0.0; 3];
             }
@@ -102,9 +93,9 @@ pub fn coefficients(points: usize, t: &ReceiverLinks) -> Vec<f32> {
     out
 }
 
-/// Per channel, `n . v_c`.
-fn along(v: &[f32], n: [f32; 3]) -> [f64; 3] {
-    std::array::from_fn(|c| (n[0] * v[3 * c] + n[1] * v[3 * c + 1] + n[2] * v[3 * c + 2]) as f64)
+/// Per colour channel, `n . v_c` of a point's vector irradiance `v` (9 floats, RGB-major).
+pub(crate) fn along(v: &[f32], n: [f32; 3]) -> [f32; 3] {
+    std::array::from_fn(|c| n[0] * v[3 * c] + n[1] * v[3 * c + 1] + n[2] * v[3 * c + 2])
 }
 
 /// The estimate from T. Per processed receiver the gather's vector irradiance under the
@@ -154,8 +145,8 @@ pub fn estimate(ib: &IndexedBasis, t: &ReceiverLinks) -> RefinementDrop {
     for &r in &t.rows {
         let (r, n) = (r as usize, b.normals[r as usize]);
         let area = (b.disk_radii[b.level_of(r)] as f64).powi(2);
-        let k = along(&cut[r * LINK_DIM..(r + 1) * LINK_DIM], n);
-        let f = along(&full[r * LINK_DIM..(r + 1) * LINK_DIM], n);
+        let k = along(&cut[r * LINK_DIM..(r + 1) * LINK_DIM], n).map(f64::from);
+        let f = along(&full[r * LINK_DIM..(r + 1) * LINK_DIM], n).map(f64::from);
         for c in 0..3 {
             kept[c] += area * k[c];
             dropped[c] += area * (f[c] - k[c]);

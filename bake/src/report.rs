@@ -211,9 +211,10 @@ fn pct(x: f64) -> String {
 /// The error estimate's total: the `TRPT` total (series tail, bounce truncation, storage) plus
 /// the magnitude of the indirect light's share at the scene's camera
 /// ([`CameraCheck::share_all`], `TCAM`), which holds the links of T dropped, the bounces, the
-/// direct light's projection and the basis' reconstruction where the camera looks; in a file without that check, plus the magnitude of
-/// what refinement dropped at the receivers ([`RefinementDrop::share`], `TDRP`).
-pub fn total_with_drop(
+/// direct light's projection and the basis' reconstruction where the camera looks; in a file
+/// without that check, plus the magnitude of what refinement dropped at the receivers
+/// ([`RefinementDrop::share`], `TDRP`).
+pub fn estimate_total(
     r: &TransportReport,
     drop: Option<&RefinementDrop>,
     check: Option<&CameraCheck>,
@@ -261,7 +262,7 @@ pub fn estimate_table(
         pct(e.quantisation)
     );
     let too = |share: f64| if share >= 0.0 { "dark" } else { "bright" };
-    let total = pct(total_with_drop(r, drop, check));
+    let total = pct(estimate_total(r, drop, check));
     match (check, drop) {
         (Some(c), _) => {
             let _ = writeln!(

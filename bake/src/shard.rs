@@ -258,13 +258,10 @@ pub fn merge(
         trace_level0_bounces(ib, caster, &s0.params, policy, &mut t, obs);
     }
     // The check of the light at the camera traces the scene: only with it, as a single bake.
-    let light = match caster {
-        Some(_) => Some(
-            Light::from_info(&first.meta.light)
-                .map_err(|e| BakeError::Merge(format!("the shards' light: {e}")))?,
-        ),
-        None => None,
-    };
+    let light = caster
+        .map(|_| Light::from_info(&first.meta.light))
+        .transpose()
+        .map_err(|e| BakeError::Merge(format!("the shards' light: {e}")))?;
     let check = caster
         .zip(light.as_ref())
         .map(|(caster, light)| CheckScene {

@@ -35,20 +35,39 @@ pub fn ray_direction(
     (right * sx + up * sy - back).normalize()
 }
 
+/// A camera's primary rays with its frame computed once, for many rays.
+#[derive(Clone, Copy, Debug)]
+pub struct PrimaryRays {
+    frame: (Vec3, Vec3, Vec3),
+    fovy_deg: f32,
+    size: (u32, u32),
+}
+
+impl PrimaryRays {
+    /// The unit direction of the primary ray through the image point `(px, py)`.
+    pub fn direction(&self, px: f32, py: f32) -> Vec3 {
+        ray_direction(self.frame, self.fovy_deg, self.size, (px, py))
+    }
+}
+
 impl CameraInfo {
-    /// The primary ray's unit direction through the image point `(px, py)` of this camera;
-    /// `None` when the camera is degenerate (see [`frame`]) or has an empty image.
-    pub fn ray_direction(&self, px: f32, py: f32) -> Option<Vec3> {
+    /// This camera's primary rays; `None` when the camera is degenerate (see [`frame`]) or
+    /// has an empty image.
+    pub fn primary_rays(&self) -> Option<PrimaryRays> {
         if self.width == 0 || self.height == 0 {
             return None;
         }
-        let f = frame(
-            Vec3::from(self.position),
-            Vec3::from(self.target),
-            Vec3::from(self.up),
-        );
-        let d = ray_direction(f, self.fovy_deg, (self.width, self.height), (px, py));
-        d.is_finite().then_some(d)
+        let rays = PrimaryRays {
+            frame: frame(
+                Vec3::from(self.position),
+                Vec3::from(self.target),
+                Vec3::from(self.up),
+            ),
+            fovy_deg: self.fovy_deg,
+            size: (self.width, self.height),
+        };
+        let centre = rays.direction(0.5 * self.width as f32, 0.5 * self.height as f32);
+        centre.is_finite().then_some(rays)
     }
 }
 
@@ -66,17 +85,18 @@ mod tests {
             width: 200,
             height: 100,
         };
-        let c = cam.ray_direction(100.0, 50.0).unwrap();
+        let rays = cam.primary_rays().unwrap();
+        let c = rays.direction(100.0, 50.0);
         assert!((c - Vec3::new(0.0, 0.0, -1.0)).length() < 1e-6);
         // Top edge at 45 degrees up; the left edge at atan(2) (aspect 2).
-        let top = cam.ray_direction(100.0, 0.0).unwrap();
+        let top = rays.direction(100.0, 0.0);
         assert!((top.y / -top.z - 1.0).abs() < 1e-5);
-        let left = cam.ray_direction(0.0, 50.0).unwrap();
+        let left = rays.direction(0.0, 50.0);
         assert!((left.x / left.z - 2.0).abs() < 1e-5);
         let bad = CameraInfo {
             up: [0.0, 0.0, 1.0],
             ..cam.clone()
         };
-        assert!(bad.ray_direction(100.0, 50.0).is_none());
+        assert!(bad.primary_rays().is_none());
     }
 }

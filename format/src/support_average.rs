@@ -256,6 +256,30 @@ impl<'a> SupportAverage<'a> {
         light.intensity.map(|i| i * acc)
     }
 
+    /// The direct-light sample at point `j` before visibility, as the viewer's relighting and
+    /// the bake's estimates take it: the light's irradiance at the point, blended toward the
+    /// support average ([`SupportAverage::irradiance`]) by [`near_weight`]; and whether the
+    /// average took part.
+    pub fn sample(&self, j: usize, light: &Light) -> ([f32; 3], bool) {
+        let b = &self.ib.basis;
+        let (x, n) = (Vec3::from(b.positions[j]), Vec3::from(b.normals[j]));
+        let e = light.irradiance(x, n);
+        let near = near_weight(
+            light.position.distance(x),
+            (light.position - x).dot(n),
+            b.radii[j],
+        );
+        if near > 0.0 {
+            let avg = self.irradiance(j, light);
+            (
+                std::array::from_fn(|c| near * avg[c] + (1.0 - near) * e[c]),
+                true,
+            )
+        } else {
+            (e, false)
+        }
+    }
+
     /// The support average `int B_j E dA / int B_j dA` of the unoccluded irradiance, RGB.
     pub fn irradiance(&self, j: usize, light: &Light) -> [f32; 3] {
         let area = self.area(j);

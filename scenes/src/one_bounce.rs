@@ -1,6 +1,6 @@
 //! The one-bounce light at a surface point under a point light, shared by the viewer's
-//! reference path tracer (at every vertex of its paths) and the bake's check of its own first
-//! bounce at the scene's camera, so that both trace the same estimator.
+//! reference path tracer (at every vertex of its paths) and the bake's check of its own light
+//! at the scene's camera, so that both trace the same estimator.
 //!
 //! At a surface point `p` (shading normal `n_s`, geometric normal `n_g`, facing the side light
 //! arrives from) the one-bounce term `T(p) = ∫ ρ(y)/π E_d(y) cos θ_p dω` is estimated with

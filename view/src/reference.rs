@@ -20,9 +20,9 @@
 //!   path `x → y1 → y2 → ...` contributes `Σ_k β_k E_d(y_k)` with `β_k = ρ(y1) ⋯ ρ(y_k)`
 //!   (next-event estimation toward the light at every vertex), where each vertex's one-bounce
 //!   term is combined by multiple importance sampling with a sample traced from the light
-//!   (`mlt_scenes::one_bounce`, which the bake's check of its first bounce shares; without it
-//!   the bright spot that a point light close to a wall makes dominates the noise). Russian roulette from bounce
-//!   [`ReferenceOptions::rr_start`] on, survival probability `q = max(β)` (capped at 1) and
+//!   (`mlt_scenes::one_bounce`, which the bake's check of its light at the camera shares;
+//!   without it the bright spot that a point light close to a wall makes dominates the noise).
+//!   Russian roulette from bounce [`ReferenceOptions::rr_start`] on, survival probability `q = max(β)` (capped at 1) and
 //!   `β /= q` on survival, keeps the estimator unbiased; a hard cap of
 //!   [`ReferenceOptions::max_bounces`] bounds the work (the bias it leaves is the energy of the
 //!   bounces beyond the cap, below `ρmax^max_bounces` of the total for a closed scene).
@@ -248,9 +248,9 @@ fn cosine_sample(n: Vec3, rng: &mut Pcg32) -> Vec3 {
 struct Tracer<'a> {
     caster: &'a dyn RayCaster,
     light: &'a Light,
-    /// The one-bounce estimator at a path's vertices (shared with the bake's camera check).
+    /// The one-bounce estimator at a path's vertices (shared with the bake's camera check);
+    /// it also holds the scene's ray offset.
     one: OneBounce<'a>,
-    eps: f32,
     opts: ReferenceOptions,
 }
 
@@ -270,7 +270,6 @@ impl<'a> Tracer<'a> {
             caster,
             light,
             one: OneBounce::new(caster, point),
-            eps: caster.ray_epsilon(),
             opts: *opts,
         })
     }
@@ -320,7 +319,8 @@ impl<'a> Tracer<'a> {
         };
         let inv_pi = std::f32::consts::FRAC_1_PI;
         let inv_2pi = 0.5 * inv_pi;
-        let po = x + n * self.eps;
+        let eps = self.one.eps();
+        let po = x + n * eps;
         // Light-sampled one-bounce term.
         if let Some(y) = self.one.light_ray((rng.next_f32(), rng.next_f32())) {
             let d = y.position - po;
@@ -330,7 +330,7 @@ impl<'a> Tracer<'a> {
                 let cos_y = y.geometric_normal.dot(-dir);
                 if positive(n.dot(dir)) && positive(cos_y) {
                     let ed = self.light.irradiance(y.position, y.shading_normal);
-                    let yo = y.position + y.geometric_normal * self.eps;
+                    let yo = y.position + y.geometric_normal * eps;
                     if ed != [0.0; 3] && !self.caster.occluded(po, yo) {
                         let p_g = inv_2pi * cos_y / d2;
                         let p_l = self.one.light_pdf(y.position, y.geometric_normal);

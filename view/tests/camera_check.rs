@@ -7,7 +7,6 @@
 mod common;
 
 use common::bake_to;
-use mlt_bake::BakeOptions;
 use mlt_format::BakedFile;
 use mlt_view::reference::{render_reference_with, ReferenceOptions};
 use mlt_view::{Camera, Light};
@@ -17,17 +16,7 @@ fn the_camera_check_traces_what_the_reference_renders_through_the_camera() {
     let d = common::temp_dir("camera_check", "cornell");
     let f = d.join("cornell.mlt");
     let spec = "builtin:cornell";
-    bake_to(
-        &f,
-        spec,
-        BakeOptions {
-            receiver_levels: Some(3),
-            coarse_count: Some(40),
-            gather_rays: Some(16),
-            bounces: Some(1),
-            ..Default::default()
-        },
-    );
+    bake_to(&f, spec, common::small_cornell(3, 16, Some(1)));
     let file = BakedFile::open(&f).unwrap();
     let meta = file.meta().unwrap();
     let check = file

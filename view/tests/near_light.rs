@@ -12,7 +12,6 @@ mod common;
 
 use common::bake_to;
 use glam::Vec3;
-use mlt_bake::BakeOptions;
 use mlt_format::BakedFile;
 use mlt_relight::PullPushOp;
 use mlt_view::{CpuRelighter, Light};
@@ -79,17 +78,7 @@ fn the_projected_direct_light_keeps_its_flux_as_the_light_nears_a_wall() {
     let d = common::temp_dir("near_light", "cornell");
     let f = d.join("cornell.mlt");
     let spec = "builtin:cornell";
-    bake_to(
-        &f,
-        spec,
-        BakeOptions {
-            receiver_levels: Some(4),
-            coarse_count: Some(40),
-            gather_rays: Some(16),
-            bounces: Some(1),
-            ..Default::default()
-        },
-    );
+    bake_to(&f, spec, common::small_cornell(4, 16, Some(1)));
     let file = BakedFile::open(&f).unwrap();
     let ib = file.basis().unwrap();
     let tm = file.transport_meta().unwrap().unwrap();

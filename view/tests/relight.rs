@@ -33,16 +33,7 @@ fn small_cornell(
     let d = temp(name);
     let f = d.join("cornell.mlt");
     let spec = "builtin:cornell";
-    bake_to(
-        &f,
-        spec,
-        BakeOptions {
-            receiver_levels: Some(4),
-            coarse_count: Some(40),
-            gather_rays: Some(gather_rays),
-            ..Default::default()
-        },
-    );
+    bake_to(&f, spec, common::small_cornell(4, gather_rays, None));
     let file = BakedFile::open(&f).unwrap();
     let ib = file.basis().unwrap();
     let tm = file.transport_meta().unwrap().unwrap();

@@ -49,7 +49,7 @@ use crate::light::Light;
 use crate::pull_push_op::PullPushOp;
 use crate::receiver_links::ReceiverLinks;
 use crate::relight::{Frame, Relight, StageTimes};
-use crate::support_average::{near_weight, SupportAverage};
+use crate::support_average::SupportAverage;
 
 /// Steps of the bounce-light feedback a file with the chain of bounces gets by default
 /// ([`CpuRelighter::use_bounce_corrections`]).
@@ -372,27 +372,17 @@ impl<'a> CpuRelighter<'a> {
                 if !self.sample_used[j] {
                     return ([0.0; 3], 0, false);
                 }
-                let x = Vec3::from(b.positions[j]);
-                let n = Vec3::from(b.normals[j]);
-                let mut e = light.irradiance(x, n);
-                let near = if self.support_average {
-                    near_weight(
-                        light.position.distance(x),
-                        (light.position - x).dot(n),
-                        b.radii[j],
-                    )
+                let (e, averaged) = if self.support_average {
+                    self.support.sample(j, light)
                 } else {
-                    0.0
+                    let (x, n) = (Vec3::from(b.positions[j]), Vec3::from(b.normals[j]));
+                    (light.irradiance(x, n), false)
                 };
-                if near > 0.0 {
-                    let avg = self.support.irradiance(j, light);
-                    e = std::array::from_fn(|c| near * avg[c] + (1.0 - near) * e[c]);
-                }
                 if e == [0.0; 3] {
-                    return (e, 0, near > 0.0);
+                    return (e, 0, averaged);
                 }
                 let (v, rays) = self.visibility(j, light, clearance);
-                ([e[0] * v, e[1] * v, e[2] * v], rays, near > 0.0)
+                ([e[0] * v, e[1] * v, e[2] * v], rays, averaged)
             })
             .collect();
         let rays = per_point.iter().map(|p| u64::from(p.1)).sum();

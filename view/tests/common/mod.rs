@@ -19,6 +19,18 @@ pub fn bake_to(path: &Path, spec: &str, opts: BakeOptions) {
     mlt_format::file::write(path, &out.contents, WriteOptions::default()).unwrap();
 }
 
+/// Options of a small bake of the built-in Cornell box: `receiver_levels` levels over 40
+/// coarsest points, `gather_rays` rays per gather, `bounces` (`None`: the default).
+pub fn small_cornell(receiver_levels: u32, gather_rays: u32, bounces: Option<u32>) -> BakeOptions {
+    BakeOptions {
+        receiver_levels: Some(receiver_levels),
+        coarse_count: Some(40),
+        gather_rays: Some(gather_rays),
+        bounces,
+        ..Default::default()
+    }
+}
+
 /// A fresh, empty directory for the test `name` of the test file `file`, removed on drop.
 pub fn temp_dir(file: &str, name: &str) -> TempDir {
     TempDir::new(&format!("{file}-{name}"))
