@@ -11,10 +11,17 @@
 //! (as the tech report's gathers). The midpoint rule in `cos theta` integrates the normal
 //! component exactly for uniform radiance. The angle comes from a stream keyed by the
 //! receiver's index, so the result does not depend on the thread that computes it.
+//!
+//! The hemisphere is the receiver's shading normal's, less the directions below the surface it
+//! lies on (found by [`geometric_normal_under`]): where vertex normals are smoothed across
+//! edges the shading normal leans from the face, and light cannot arrive through the surface.
+//! Those directions count as rays that found nothing (their weight stays in `2/N`), which is how
+//! the reference path tracer treats them. With face normals none is skipped.
 
 use glam::Vec3;
 use mlt_format::links::LINK_DIM;
 use mlt_format::IndexedBasis;
+use mlt_scenes::raycast::geometric_normal_under;
 use mlt_scenes::RayCaster;
 
 use crate::rng::{Rng, Stream};
@@ -118,6 +125,7 @@ pub fn gather(
     let b = &ib.basis;
     let x = Vec3::from(b.positions[receiver]);
     let n = Vec3::from(b.normals[receiver]);
+    let g = geometric_normal_under(caster, x, n, eps);
     let (t, bt) = tangent_frame(n);
     let mut rng = Rng::new(seed, Stream::Gather, receiver as u64);
     let rotation = rng.next_f32();
@@ -128,6 +136,10 @@ pub fn gather(
     let near = b.disk_radii[b.level_of(receiver)];
     for k in 0..rays {
         let dir = hemisphere_direction(k, rays, rotation, t, bt, n);
+        if dir.dot(g) <= 0.0 {
+            // Below the surface (a shading normal leaning from its face): no light.
+            continue;
+        }
         counts.rays += 1;
         let Some(hit) = caster.intersect(origin, dir, 0.0, f32::INFINITY) else {
             continue;
@@ -248,6 +260,63 @@ pub(crate) mod tests {
                 }
             }
         }
+    }
+
+    /// A horizontal quad at height `y`, two metres wide.
+    fn plate(y: f32, m: &mut mlt_scenes::Mesh, material: u32) {
+        let base = m.positions.len() as u32;
+        for (x, z) in [(-1.0, -1.0), (-1.0, 1.0), (1.0, 1.0), (1.0, -1.0)] {
+            m.positions.push(Vec3::new(x, y, z));
+        }
+        m.triangles.push([base, base + 1, base + 2]);
+        m.triangles.push([base, base + 2, base + 3]);
+        m.triangle_material.extend([material; 2]);
+    }
+
+    #[test]
+    fn no_light_arrives_from_below_a_leaning_shading_normal() {
+        // A floor between a ceiling and a plate below it. A receiver on the floor whose shading
+        // normal leans 30 degrees from the face sees the ceiling only: the third of its
+        // hemisphere below the floor holds neither the plate (light from behind the surface)
+        // nor the floor itself (its own surface, hit from a few eps away).
+        let mut mesh = mlt_scenes::Mesh {
+            materials: vec![mlt_scenes::Material::plain("m", [0.5; 3])],
+            ..Default::default()
+        };
+        for y in [-0.5, 0.0, 1.0] {
+            plate(y, &mut mesh, 0);
+        }
+        let caster = mlt_scenes::MeshCaster::new(mesh);
+        let eps = caster.ray_epsilon();
+        let lean = Vec3::new(0.5, 0.75f32.sqrt(), 0.0);
+        let mut b = Basis::default();
+        // (position, normal): the receiver, then one sender on each surface.
+        let points = [
+            (Vec3::ZERO, lean),
+            (Vec3::new(0.3, -0.5, 0.0), Vec3::Y),
+            (Vec3::new(-0.3, 0.0, 0.0), Vec3::Y),
+            (Vec3::new(0.0, 1.0, 0.0), -Vec3::Y),
+        ];
+        for (p, n) in points {
+            b.positions.push(p.to_array());
+            b.normals.push(n.to_array());
+            b.radii.push(4.0);
+        }
+        b.level_offsets = vec![0, b.positions.len() as u32];
+        b.disk_radii = vec![0.5];
+        let ib = IndexedBasis::build(b).unwrap();
+        let cells = SenderCells::new(&ib, 1);
+        let mut s = Scratch::new(ib.basis.len());
+        let rays = 64;
+        let counts = gather(&ib, &cells, &caster, 0, 1, rays, 3, eps, &mut s);
+        let linked = |j: u32| s.touched.contains(&j) && link_norm(s.get(j)) > 0.0;
+        assert!(linked(3), "the ceiling is seen");
+        assert!(!linked(1), "light from behind the floor");
+        assert!(!linked(2), "the receiver's own floor");
+        // The part of the hemisphere below the face is a lune of angle 30 degrees, solid
+        // angle 2 (pi / 6) of the hemisphere's 2 pi: 5/6 of the (uniform) directions stay.
+        let kept = counts.rays as f32 / rays as f32;
+        assert!((kept - 5.0 / 6.0).abs() < 0.05, "{kept}");
     }
 
     #[test]

@@ -29,6 +29,7 @@
 use glam::Vec3;
 use mlt_format::links::LINK_DIM;
 use mlt_format::IndexedBasis;
+use mlt_scenes::raycast::geometric_normal_under;
 use mlt_scenes::sampling::{cosine_hemisphere, tangent_frame};
 use mlt_scenes::RayCaster;
 use rayon::prelude::*;
@@ -187,6 +188,8 @@ fn trace_receiver(
     let levels = ib.levels();
     let x = Vec3::from(b.positions[receiver]);
     let n = Vec3::from(b.normals[receiver]);
+    // No light from below the surface, as in the gathers (`gather::gather`).
+    let g = geometric_normal_under(caster, x, n, eps);
     let (tx, ty) = tangent_frame(n);
     let mut rng = Rng::new(seed, Stream::Paths, receiver as u64);
     let rotation = rng.next_f32();
@@ -194,6 +197,9 @@ fn trace_receiver(
     let origin = x + n * eps;
     for k in 0..paths {
         let dir1 = hemisphere_direction(k, paths, rotation, tx, ty, n);
+        if dir1.dot(g) <= 0.0 {
+            continue;
+        }
         let Some(mut hit) = caster.intersect(origin, dir1, 0.0, f32::INFINITY) else {
             continue;
         };

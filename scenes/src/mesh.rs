@@ -7,6 +7,11 @@ use glam::{Vec2, Vec3};
 use crate::error::SceneError;
 use crate::texture::Texture;
 
+/// The largest angle, in degrees, between a vertex normal and the face of a triangle that uses
+/// it for the normal to shade that triangle ([`Mesh::drop_leaning_normals`]). Normals smoothed
+/// across edges of up to about 120 degrees between faces (a cylinder of three facets) stay.
+pub const MAX_NORMAL_LEAN_DEG: f32 = 60.0;
+
 /// Albedo used where a face has no material (or the material library is missing).
 pub const DEFAULT_ALBEDO: [f32; 3] = [0.5, 0.5, 0.5];
 
@@ -240,6 +245,16 @@ impl Mesh {
                 ),
             );
         }
+        let leaning = self.drop_leaning_normals();
+        if leaning > 0 {
+            crate::obj::warn(
+                warnings,
+                format!(
+                    "{}: {leaning} vertex normals lean more than {MAX_NORMAL_LEAN_DEG} degrees from a face that uses them; those vertices use the face normal",
+                    path.display()
+                ),
+            );
+        }
         self.drop_degenerate_triangles(path);
         self.validate(path)
     }
@@ -256,6 +271,48 @@ impl Mesh {
             }
         }
         absent
+    }
+
+    /// Marks absent ([`Vec3::ZERO`]) every vertex normal that leans more than
+    /// [`MAX_NORMAL_LEAN_DEG`] from the face of a triangle that uses it (either side of the
+    /// face: a normal is turned to the geometric side where it is used). Such a normal is not a
+    /// shading normal of that face: it comes from averaging across a sharp edge (the corner of
+    /// a box whose walls, floor and roof share one vertex normal) and tilts the face's shading
+    /// hemisphere nearly into its plane, so that the face shades almost black where it should
+    /// be lit, and the smooth light a basis can hold cannot follow a normal that turns by 90
+    /// degrees across one triangle. The triangles using it then shade with the face normal, as
+    /// for a missing normal. Returns how many were marked.
+    pub fn drop_leaning_normals(&mut self) -> usize {
+        if self.normals.is_empty() {
+            return 0;
+        }
+        let min_cos = MAX_NORMAL_LEAN_DEG.to_radians().cos();
+        let mut leaning = vec![false; self.normals.len()];
+        for tri in &self.triangles {
+            let p = |i: u32| self.positions.get(i as usize).copied();
+            let (Some(a), Some(b), Some(c)) = (p(tri[0]), p(tri[1]), p(tri[2])) else {
+                continue;
+            };
+            let face = (b - a).cross(c - a).normalize_or_zero();
+            if face == Vec3::ZERO || !face.is_finite() {
+                continue;
+            }
+            for &i in tri {
+                if let Some(n) = self.normals.get(i as usize) {
+                    if *n != Vec3::ZERO && n.dot(face).abs() < min_cos {
+                        leaning[i as usize] = true;
+                    }
+                }
+            }
+        }
+        let mut count = 0;
+        for (n, lean) in self.normals.iter_mut().zip(leaning) {
+            if lean {
+                *n = Vec3::ZERO;
+                count += 1;
+            }
+        }
+        count
     }
 
     /// Drops triangles of zero area (edge cross product exactly zero in f32, or a
@@ -348,6 +405,48 @@ mod tests {
         assert_eq!(m.triangles, vec![[0, 1, 2]]);
         assert_eq!(m.triangle_material.len(), 1);
         assert_eq!(m.degenerate_dropped, 2);
+    }
+
+    #[test]
+    fn normals_leaning_past_the_limit_from_a_face_are_dropped() {
+        // A triangle in z = 0 (face normal +Z); each corner's normal leans a given angle from
+        // +Z toward +X. Up to 60 degrees a normal stays (either side of the face: -Z leans 0),
+        // beyond it the vertex uses the face normal, in every triangle that uses it.
+        let lean = |deg: f32| {
+            let r = deg.to_radians();
+            Vec3::new(r.sin(), 0.0, r.cos())
+        };
+        let mut m = one_triangle();
+        m.normals = vec![lean(59.0), -Vec3::Z, lean(61.0)];
+        assert_eq!(m.drop_leaning_normals(), 1);
+        assert_eq!(m.normals[0], lean(59.0));
+        assert_eq!(m.normals[1], -Vec3::Z);
+        assert_eq!(m.normals[2], Vec3::ZERO);
+        assert_eq!(m.shading_normal(0, (0.2, 0.2)), None);
+        // The corner of a box: one normal shared by two perpendicular faces leans 45 degrees
+        // from each and stays; the normal of one face used by the other leans 90 and goes.
+        let mut m = Mesh {
+            positions: vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z],
+            normals: vec![
+                Vec3::new(0.0, 1.0, 1.0).normalize(),
+                Vec3::Z,
+                Vec3::Z,
+                Vec3::Z,
+            ],
+            triangles: vec![[0, 1, 2], [0, 3, 1]],
+            triangle_material: vec![0, 0],
+            materials: vec![Material::plain("m", [0.5; 3])],
+            ..Default::default()
+        };
+        assert_eq!(m.drop_leaning_normals(), 2);
+        assert_ne!(m.normals[0], Vec3::ZERO);
+        assert_eq!(m.normals[1], Vec3::ZERO, "+Z used by the face y = 0");
+        assert_eq!(m.normals[2], Vec3::Z);
+        assert_eq!(
+            m.normals[3],
+            Vec3::ZERO,
+            "+Z at (0, 0, 1) lies in the face y = 0"
+        );
     }
 
     #[test]

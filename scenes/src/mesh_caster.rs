@@ -3,10 +3,17 @@
 //! The BVH is built single-threaded (obvhs without its `parallel` feature), so the tree and
 //! every result are the same whatever the thread count.
 //!
-//! The BVH sees the mesh scaled by a power of two that brings its extent near 1 (exact in
-//! floating point: only exponents change), and rays are scaled alike. obvhs' compressed nodes
-//! lose tiny scenes otherwise: at 1e-4 of the Cornell box's size every ray missed. With the
-//! scaling, results do not depend on the scene's units.
+//! The BVH sees the mesh scaled by a power of two that brings its extent near 1024
+//! ([`BVH_EXTENT_LOG2`]; exact in floating point: only exponents change), and rays are scaled
+//! alike, so results do not depend on the scene's units. obvhs' node test clamps every entry
+//! distance to at least an absolute `1e-4` (`cwbvh/node.rs`, `EPSILON`): a surface closer than
+//! that to a ray's origin is invisible where its node's box is thin along the ray (a wall, a
+//! floor). At 1e-4 of the
+//! Cornell box's size every ray missed; at an extent near 1 the blind zone was 1e-4 of the
+//! scene (ten ray epsilons: rays from a floor passed through the foot of a wall, rays leaving
+//! below a leaning shading normal passed through their own surface). At an extent near 1024
+//! it is 1e-7 of the scene, a hundredth of the ray epsilon, while f32 keeps the same relative
+//! precision (a power of two changes only exponents).
 
 use std::time::{Duration, Instant};
 
@@ -18,6 +25,9 @@ use obvhs::BvhBuildParams;
 
 use crate::mesh::Mesh;
 use crate::raycast::{Hit, RayCaster};
+
+/// The power of two the scene's extent is scaled to in the BVH's coordinates (module docs).
+pub const BVH_EXTENT_LOG2: i32 = 10;
 
 /// A [`RayCaster`] over a [`Mesh`].
 pub struct MeshCaster {
@@ -41,7 +51,13 @@ impl MeshCaster {
         let bounds = mesh.bounds();
         let extent = (bounds.1 - bounds.0).max_element();
         let scale = if extent.is_finite() && extent > 0.0 {
-            2f32.powi(-extent.log2().round() as i32)
+            2f32.powi(BVH_EXTENT_LOG2 - extent.log2().round() as i32)
+        } else {
+            1.0
+        };
+        // Beyond f32's exponents (an extent under about 1e-35) keep the scene's own units.
+        let scale = if scale.is_finite() && scale > 0.0 {
+            scale
         } else {
             1.0
         };
@@ -287,6 +303,34 @@ mod tests {
             assert!((h.shading_normal.length() - 1.0).abs() < 1e-5);
             // Still the (possibly flipped) tilted normal, not the geometric fallback.
             assert!((h.shading_normal.x.abs() - n.x.abs()).abs() < 1e-5);
+        }
+    }
+
+    #[test]
+    fn surfaces_a_few_ray_epsilons_from_the_origin_are_hit() {
+        // A floor and a wall meeting at x = 1 (a contact). obvhs' node test sees nothing
+        // within 1e-4 of a ray's origin in the BVH's coordinates; scaled to an extent near
+        // 1024 that is far below the ray epsilon, so rays from just above the floor find it
+        // below them and rays from next to the wall's foot find the wall.
+        let mut mesh = quad(Vec::new());
+        let base = mesh.positions.len() as u32;
+        for (y, z) in [(0.0, -1.0), (0.0, 1.0), (2.0, 1.0), (2.0, -1.0)] {
+            mesh.positions.push(Vec3::new(1.0, y, z));
+        }
+        mesh.triangles.push([base, base + 1, base + 2]);
+        mesh.triangles.push([base, base + 2, base + 3]);
+        mesh.triangle_material.extend([0, 0]);
+        let caster = MeshCaster::new(mesh);
+        let eps = caster.ray_epsilon();
+        for k in [1.5f32, 2.0, 4.0, 10.0, 32.0] {
+            let d = k * eps;
+            let down = caster.intersect(Vec3::new(0.3, d, 0.2), -Vec3::Y, 0.0, 1.0);
+            let t = down.map(|h| h.t);
+            assert!(t.is_some_and(|t| (t - d).abs() < 0.1 * d), "{k}: {t:?}");
+            let side = caster.intersect(Vec3::new(1.0 - d, eps, 0.2), Vec3::X, 0.0, 1.0);
+            let t = side.map(|h| h.t);
+            assert!(t.is_some_and(|t| (t - d).abs() < 0.1 * d), "{k}: {t:?}");
+            assert!(caster.occluded(Vec3::new(1.0 - d, eps, 0.2), Vec3::new(1.5, eps, 0.2)));
         }
     }
 

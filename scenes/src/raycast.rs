@@ -55,3 +55,18 @@ pub trait RayCaster: Sync + Send {
         1e-5 * extent + 4.0 * f32::EPSILON * magnitude
     }
 }
+
+/// The geometric (face) normal of the surface a point `x` with shading normal `n` lies on (a
+/// basis point, which carries only its shading normal): that of the first hit of a probe from
+/// `x + 4 eps n` toward `-n` within `8 eps` (a hit's geometric normal faces the probe, so `n`'s
+/// side), or `n` where the probe finds no surface (a point at a surface's edge).
+///
+/// Where a mesh's vertex normals are smoothed across edges the shading normal leans away from
+/// the face, and part of its hemisphere lies below the surface: light from there does not reach
+/// `x` (the surface is in the way), which is how every estimator here treats it (a direction
+/// `d` with `d . n_g <= 0` carries nothing), the reference path tracer's included.
+pub fn geometric_normal_under(caster: &dyn RayCaster, x: Vec3, n: Vec3, eps: f32) -> Vec3 {
+    caster
+        .intersect_geometry(x + n * (4.0 * eps), -n, 0.0, 8.0 * eps)
+        .map_or(n, |h| h.geometric_normal)
+}

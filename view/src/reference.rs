@@ -49,6 +49,7 @@ use std::time::Instant;
 use glam::Vec3;
 use mlt_relight::Light;
 use mlt_scenes::one_bounce::{OneBounce, PointLight};
+use mlt_scenes::raycast::geometric_normal_under;
 use mlt_scenes::sampling::tangent_frame;
 use mlt_scenes::RayCaster;
 use rayon::prelude::*;
@@ -321,6 +322,9 @@ impl<'a> Tracer<'a> {
         let inv_2pi = 0.5 * inv_pi;
         let eps = self.one.eps();
         let po = x + n * eps;
+        // No light arrives from below the surface (a leaning shading normal), as in the bake's
+        // gathers and the reference's paths.
+        let ng = geometric_normal_under(self.caster, x, n, eps);
         // Light-sampled one-bounce term.
         if let Some(y) = self.one.light_ray((rng.next_f32(), rng.next_f32())) {
             let d = y.position - po;
@@ -328,7 +332,7 @@ impl<'a> Tracer<'a> {
             if positive(d2) {
                 let dir = d / d2.sqrt();
                 let cos_y = y.geometric_normal.dot(-dir);
-                if positive(n.dot(dir)) && positive(cos_y) {
+                if positive(n.dot(dir)) && positive(ng.dot(dir)) && positive(cos_y) {
                     let ed = self.light.irradiance(y.position, y.shading_normal);
                     let yo = y.position + y.geometric_normal * eps;
                     if ed != [0.0; 3] && !self.caster.occluded(po, yo) {
@@ -353,7 +357,7 @@ impl<'a> Tracer<'a> {
         let phi = std::f32::consts::TAU * u2;
         let (t, b) = tangent_frame(n);
         let dir = (t * (rr * phi.cos()) + b * (rr * phi.sin()) + n * zc).normalize();
-        if !positive(dir.dot(n)) {
+        if !positive(dir.dot(n)) || !positive(dir.dot(ng)) {
             return out;
         }
         let Some(hit) = self.caster.intersect(po, dir, 0.0, f32::INFINITY) else {
