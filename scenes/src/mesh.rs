@@ -233,27 +233,28 @@ impl Mesh {
     }
 
     /// The last step of every loader: sanitises normals (with a warning naming `path` when
-    /// some were unusable), drops zero-area triangles and validates the result.
+    /// some were unusable: zero, non-finite, or leaning too far from a face that uses them),
+    /// drops zero-area triangles and validates the result.
     pub fn finish(&mut self, path: &Path, warnings: &mut Vec<String>) -> Result<(), SceneError> {
         let absent = self.sanitize_normals();
-        if absent > 0 {
-            crate::obj::warn(
-                warnings,
-                format!(
-                    "{}: {absent} vertex normals are zero or non-finite; those vertices use the face normal",
-                    path.display()
-                ),
-            );
-        }
         let leaning = self.drop_leaning_normals();
-        if leaning > 0 {
-            crate::obj::warn(
-                warnings,
-                format!(
-                    "{}: {leaning} vertex normals lean more than {MAX_NORMAL_LEAN_DEG} degrees from a face that uses them; those vertices use the face normal",
-                    path.display()
-                ),
-            );
+        let why = [
+            (absent, "are zero or non-finite".to_string()),
+            (
+                leaning,
+                format!("lean more than {MAX_NORMAL_LEAN_DEG} degrees from a face that uses them"),
+            ),
+        ];
+        for (count, why) in why {
+            if count > 0 {
+                crate::obj::warn(
+                    warnings,
+                    format!(
+                        "{}: {count} vertex normals {why}; those vertices use the face normal",
+                        path.display()
+                    ),
+                );
+            }
         }
         self.drop_degenerate_triangles(path);
         self.validate(path)
