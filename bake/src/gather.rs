@@ -276,7 +276,7 @@ pub(crate) mod tests {
     #[test]
     fn no_light_arrives_from_below_a_leaning_shading_normal() {
         // A floor between a ceiling and a plate below it. A receiver on the floor whose shading
-        // normal leans 30 degrees from the face sees the ceiling only: the third of its
+        // normal leans 30 degrees from the face sees the ceiling only: the sixth of its
         // hemisphere below the floor holds neither the plate (light from behind the surface)
         // nor the floor itself (its own surface, hit from a few eps away).
         let mut mesh = mlt_scenes::Mesh {
