@@ -50,17 +50,13 @@ impl MeshCaster {
         let start = Instant::now();
         let bounds = mesh.bounds();
         let extent = (bounds.1 - bounds.0).max_element();
-        let scale = if extent.is_finite() && extent > 0.0 {
-            2f32.powi(BVH_EXTENT_LOG2 - extent.log2().round() as i32)
-        } else {
-            1.0
-        };
-        // Beyond f32's exponents (an extent under about 1e-35) keep the scene's own units.
-        let scale = if scale.is_finite() && scale > 0.0 {
-            scale
-        } else {
-            1.0
-        };
+        // An empty or non-finite extent, or one beyond f32's exponents (under about 1e-35),
+        // keeps the scene's own units.
+        let scale = Some(extent)
+            .filter(|e| e.is_finite() && *e > 0.0)
+            .map(|e| 2f32.powi(BVH_EXTENT_LOG2 - e.log2().round() as i32))
+            .filter(|s| s.is_finite() && *s > 0.0)
+            .unwrap_or(1.0);
         let mut ids = Vec::with_capacity(mesh.triangles.len());
         let mut tris = Vec::with_capacity(mesh.triangles.len());
         for (i, t) in mesh.triangles.iter().enumerate() {

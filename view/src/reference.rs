@@ -308,8 +308,10 @@ impl<'a> Tracer<'a> {
     /// by `cos θ`), and the one-bounce part is combined by multiple importance sampling with a
     /// sample traced from the light, as in [`Self::indirect_sample`]. The radiance leaving the
     /// first hit `y` toward `x` also carries `ρ(y)/π E_i(y)`, one path of
-    /// [`Self::indirect_sample`] at `y`.
-    fn vector_sample(&self, x: Vec3, n: Vec3, rng: &mut Pcg32) -> [f32; 9] {
+    /// [`Self::indirect_sample`] at `y`. No light arrives from below the surface under `x`,
+    /// whose face normal `ng` ([`geometric_normal_under`], once per point) may differ from
+    /// the shading normal `n`.
+    fn vector_sample(&self, x: Vec3, n: Vec3, ng: Vec3, rng: &mut Pcg32) -> [f32; 9] {
         let mut out = [0.0f32; 9];
         let mut add = |v: [f32; 3], d: Vec3| {
             for c in 0..3 {
@@ -322,9 +324,6 @@ impl<'a> Tracer<'a> {
         let inv_2pi = 0.5 * inv_pi;
         let eps = self.one.eps();
         let po = x + n * eps;
-        // No light arrives from below the surface (a leaning shading normal), as in the bake's
-        // gathers and the reference's paths.
-        let ng = geometric_normal_under(self.caster, x, n, eps);
         // Light-sampled one-bounce term.
         if let Some(y) = self.one.light_ray((rng.next_f32(), rng.next_f32())) {
             let d = y.position - po;
@@ -663,8 +662,11 @@ pub fn reference_vector_irradiance(
             let mut rng = Pcg32::new(opts.seed, DOMAIN_VECTOR, k as u64);
             let mut sum = [0.0f64; 9];
             let (mut lsum, mut lsq) = (0.0f64, 0.0f64);
+            // No light from below the surface (a leaning shading normal), as in the bake's
+            // gathers and the reference's paths.
+            let ng = geometric_normal_under(caster, p.position, p.normal, tracer.one.eps());
             for _ in 0..opts.spp {
-                let v = tracer.vector_sample(p.position, p.normal, &mut rng);
+                let v = tracer.vector_sample(p.position, p.normal, ng, &mut rng);
                 for (s, x) in sum.iter_mut().zip(v) {
                     *s += x as f64;
                 }
