@@ -34,6 +34,9 @@ pub struct Scratch {
     pub acc: Vec<[f32; LINK_DIM]>,
     touched_mark: Vec<bool>,
     pub touched: Vec<u32>,
+    /// Per sender: the gather's hits at which its function had weight (saturating), the
+    /// samples a link rests on. Only [`Scratch::add_at_hit`] counts them.
+    hits: Vec<u16>,
     /// `(sender, weight)` of one level at one hit.
     weights: Vec<(u32, f32)>,
 }
@@ -44,6 +47,7 @@ impl Scratch {
             acc: vec![[0.0; LINK_DIM]; senders],
             touched_mark: vec![false; senders],
             touched: Vec::new(),
+            hits: vec![0; senders],
             weights: Vec::new(),
         }
     }
@@ -67,6 +71,13 @@ impl Scratch {
         &self.acc[j as usize]
     }
 
+    /// The gather's hits at which sender `j`'s function had weight (0 when only `add`
+    /// touched it, e.g. Eq. 17's subtraction of the parents' links).
+    #[inline]
+    pub fn hits(&self, j: u32) -> u16 {
+        self.hits[j as usize]
+    }
+
     /// Adds `scale * v * B_j(y, n)` for every sender `j` of levels `0..levels` with weight at
     /// the surface point `(y, n)` ([`SenderCells::for_each_basis_value`]): `v` spread over the
     /// sender hierarchy's expansion at `y`. Returns the number of levels with no support there.
@@ -81,8 +92,10 @@ impl Scratch {
         scale: f32,
     ) -> u64 {
         let mut weights = std::mem::take(&mut self.weights);
-        let unsupported =
-            cells.for_each_basis_value(levels, y, n, scale, &mut weights, |j, b| self.add(j, v, b));
+        let unsupported = cells.for_each_basis_value(levels, y, n, scale, &mut weights, |j, b| {
+            self.add(j, v, b);
+            self.hits[j as usize] = self.hits[j as usize].saturating_add(1);
+        });
         self.weights = weights;
         unsupported
     }
@@ -91,6 +104,7 @@ impl Scratch {
         for &j in &self.touched {
             self.acc[j as usize] = [0.0; LINK_DIM];
             self.touched_mark[j as usize] = false;
+            self.hits[j as usize] = 0;
         }
         self.touched.clear();
     }
@@ -221,6 +235,47 @@ pub(crate) mod tests {
         b.level_offsets = vec![0, b.positions.len() as u32];
         b.disk_radii = vec![2.0];
         IndexedBasis::build(b).unwrap()
+    }
+
+    #[test]
+    fn hits_count_the_gather_samples_a_link_rests_on() {
+        let ib = sphere_basis();
+        let caster = SphereCaster::new(Vec3::ZERO, 2.0, [0.5; 3]);
+        let eps = caster.ray_epsilon();
+        let cells = SenderCells::new(&ib, 1);
+        let mut s = Scratch::new(ib.basis.len());
+        // One ray, one hit: every sender with weight there rests on that one sample, which
+        // the finer-sender budget does not keep.
+        gather(&ib, &cells, &caster, 0, 1, 1, 7, eps, &mut s);
+        assert!(!s.touched.is_empty());
+        assert!(s.touched.iter().all(|&j| s.hits(j) == 1));
+        assert!(s
+            .touched
+            .iter()
+            .all(|&j| !crate::refine::budget_sampled(s.hits(j))));
+        s.clear();
+        // Every ray hits the closed sphere and has weight on at least one sender.
+        let rays = 256u32;
+        gather(&ib, &cells, &caster, 0, 1, rays, 7, eps, &mut s);
+        let touched = s.touched.clone();
+        let hits: Vec<u16> = touched.iter().map(|&j| s.hits(j)).collect();
+        assert!(hits.iter().map(|&h| h as u32).sum::<u32>() >= rays);
+        assert!(
+            hits.iter().all(|&h| (1..=rays as u16).contains(&h)),
+            "{hits:?}"
+        );
+        assert!(hits.iter().any(|&h| h >= crate::refine::MIN_BUDGET_HITS));
+        // Eq. 17's subtraction of the parents' links adds values, not samples: a sender it
+        // alone touches has no hits (and stays a budget candidate).
+        for &j in &touched {
+            s.add(j, &[1.0; LINK_DIM], -0.5);
+        }
+        assert_eq!(touched.iter().map(|&j| s.hits(j)).collect::<Vec<_>>(), hits);
+        s.clear();
+        assert!((0..ib.basis.len() as u32).all(|j| s.hits(j) == 0));
+        s.add(3, &[1.0; LINK_DIM], -0.5);
+        assert_eq!((s.touched.as_slice(), s.hits(3)), (&[3u32][..], 0));
+        assert!(crate::refine::budget_sampled(0));
     }
 
     #[test]

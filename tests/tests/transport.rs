@@ -443,7 +443,7 @@ fn level_two_keeps_sub_epsilon_links_at_contacts_only() {
 /// Levels 2 and 3 keep their largest links to finer senders below epsilon by a budget
 /// (`refine::keeps_finer_budget`); Fig. 5 alone keeps a finer link only above epsilon, so at
 /// level 1 and at levels 4 and finer none below it is stored (level 0 keeps every link).
-/// Epsilon is small here so that the budget (40 epsilon) is below what a receiver's finer links
+/// Epsilon is small here so that the budget (20 epsilon) is below what a receiver's finer links
 /// sum to in this small box (at the default 0.025 it drops them all, as it should).
 #[test]
 fn levels_two_and_three_keep_finer_sender_links_by_a_budget() {
