@@ -73,15 +73,12 @@
 //! gather's hits, so these levels gather with [`FINER_GATHER_FACTOR`] times the rays (with the
 //! bake's rays alone, the kept links' noise times a near light's detail coefficients showed as
 //! blotches on the Cornell box's walls), and a link the gather hit only once is not kept by
-//! the budget ([`MIN_BUDGET_HITS`]): it is a one-sample estimate, mostly noise. That
-//! distinguishes the two scenes the budget was tuned on: the Cornell box's finer links rest
-//! mostly on one hit (its small senders under a light 5 mm from the ceiling), Sponza's
-//! mostly on more (its detail is real: pillars, arcades, their shadows). With it the budget is
-//! 20 epsilon (it was 40): at 20 without the two hits the Cornell boxes kept 1.4-2.4x the links
-//! and lost 5 % per pixel; with them they are as at 40, while both Sponzas gain 9-13 % per
-//! pixel and come within 1.2 % of the reference in the mean. Smaller budgets keep more detail
-//! for more links (textured Sponza at 10 and 5 epsilon: 1 % better per pixel for 45 % and 96 %
-//! more links). The budget links queue no children. At level 1 the
+//! the budget ([`MIN_BUDGET_HITS`]): it is a one-sample estimate, mostly noise. Where the
+//! emission's detail is real (pillars, arcades and their shadows, seen by several rays) the
+//! links rest on several hits and the budget keeps them; where a small sender under a near
+//! light was hit once (the Cornell box's ceiling), the link is the gather's noise times a large
+//! detail coefficient, and the test leaves it out. That is what lets the budget be small
+//! ([`FINER_BUDGET_FACTOR`]) without adding noise. The budget links queue no children. At level 1 the
 //! same rule gained 3 % per pixel on untextured Sponza's first bounce for 5x that level's
 //! links; levels 4 and finer, with 3-10x level 3's receivers, were not tried.
 //!
@@ -118,8 +115,8 @@ pub const CONTACT_FRACTION: f32 = 0.05;
 
 /// The budget of a level-2 or level-3 receiver's dropped links to finer senders, in units of
 /// epsilon (module docs). Each link is a sample of the emission's detail that the gather's rays
-/// hit once or twice, so the budget is large: it drops the many smallest, keeps the largest.
-/// Halved from 40 together with [`MIN_BUDGET_HITS`] (module docs).
+/// hit a few times, so the budget is large: it drops the many smallest, keeps the largest.
+/// Smaller budgets keep more of the detail for many more links (BENCHMARKS.md).
 pub const FINER_BUDGET_FACTOR: f32 = 20.0;
 
 /// A link to a finer sender that the gather hit fewer times than this (but at least once) is
