@@ -116,7 +116,7 @@ pub const CONTACT_FRACTION: f32 = 0.05;
 /// The budget of a level-2 or level-3 receiver's dropped links to finer senders, in units of
 /// epsilon (module docs). Each link is a sample of the emission's detail that the gather's rays
 /// hit a few times, so the budget is large: it drops the many smallest, keeps the largest.
-/// Smaller budgets keep more of the detail for many more links (BENCHMARKS.md).
+/// Smaller budgets keep more of the detail for many more links (docs/error_sources.md).
 pub const FINER_BUDGET_FACTOR: f32 = 20.0;
 
 /// A link to a finer sender that the gather hit fewer times than this (but at least once) is
