@@ -48,8 +48,12 @@ use crate::shepard::{IndexedBasis, Support, MAX_DIM, MIN_WEIGHT_SUM};
 /// The neighbour whose distance sets a flat point's radius (the k of a k-nearest search).
 pub const FLAT_NEIGHBOURS: usize = 4;
 
-/// Flat radius over the distance to the [`FLAT_NEIGHBOURS`]-th nearest flat point.
-pub const FLAT_RADIUS_FACTOR: f32 = 1.35;
+/// Flat radius over the distance to the [`FLAT_NEIGHBOURS`]-th nearest flat point. Wider
+/// functions smooth more but, once sharpened, interpolate better between the points; on
+/// Sponza's default view at 640x360, with three sharpening steps, 1.35 / 1.45 / 1.5 / 1.55
+/// give the flat image 2.07 / 1.98 / 1.95 / 1.92 % from the exact evaluation of Eq. 6 at a
+/// mean coverage of 9.7 / 10.8 / 11.3 / 11.9 functions per pixel.
+pub const FLAT_RADIUS_FACTOR: f32 = 1.5;
 
 /// A hierarchical point where the flat weights sum to less than this is a hole: the nearest
 /// flat point's radius grows until the point lies at [`HOLE_REACH`] of it.

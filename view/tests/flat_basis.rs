@@ -65,9 +65,10 @@ fn check_cornell(name: &str, opts: BakeOptions, w: u32, h: u32, check_blotch: bo
         dark_exact.len(),
         plain.rel_rmse
     );
-    // Coverage: every surface pixel, a bounded number of flat functions.
+    // Coverage: every surface pixel, a bounded number of flat functions (at most 12 in the
+    // mean, the splat pass's budget of fill; the box's default view has 8-9).
     assert_eq!(c.uncovered, 0, "surface pixels without a flat function");
-    assert!(c.coverage_mean <= 9.0, "mean coverage {}", c.coverage_mean);
+    assert!(c.coverage_mean <= 12.0, "mean coverage {}", c.coverage_mean);
     assert!(
         c.rel_rmse < rmse_max,
         "flat image differs from the exact one by {}",

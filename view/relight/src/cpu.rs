@@ -24,8 +24,9 @@
 //!    `i = S (e + P-dagger (n . R i) - y(i))`);
 //! 4. flattening of `i` to the flat basis (section 4.1: one level on the points the solution
 //!    needs, [`FlatBasis`]) by a precomputed sparse operator ([`FlattenOp`], one row per flat
-//!    point) that holds only the columns of receivers with links, then one sharpening step
-//!    `c' = 2 c - W c` ([`SharpenOp`]) that takes back most of the flat basis' smoothing.
+//!    point) that holds only the columns of receivers with links, then a few steps of
+//!    iterated Shepard correction `c_{k+1} = c_k + c_0 - W c_k` ([`SharpenOp`]) that take
+//!    back most of the flat basis' smoothing.
 //!
 //! The operators are built once, in [`CpuRelighter::new`] (timed in [`LoadStats`]). When the
 //! light has not moved, nothing is recomputed.
@@ -322,12 +323,25 @@ impl<'a> CpuRelighter<'a> {
             return Ok(());
         }
         let flat = self.flat.clone().with_normal_power(power)?;
-        let sharpen_op = SharpenOp::build(&flat)?;
+        let mut sharpen_op = SharpenOp::build(&flat)?;
+        if let Some(old) = &self.sharpen_op {
+            sharpen_op.set_steps(old.steps())?;
+        }
         self.load.sharpen_entries = sharpen_op.entries();
         self.load.sharpen_bytes = sharpen_op.bytes();
         self.flat = flat;
         self.sharpen_op = Some(sharpen_op);
         Ok(())
+    }
+
+    /// Sets the sharpening steps after flattening ([`SharpenOp::set_steps`]; 1 to
+    /// [`crate::flatten_op::MAX_SHARPEN_STEPS`], else an error that changes nothing). For
+    /// experiments; [`CpuRelighter::sharpen`] turns the steps off.
+    pub fn set_sharpen_steps(&mut self, steps: usize) -> Result<(), RelightError> {
+        match self.sharpen_op.as_mut() {
+            Some(op) => op.set_steps(steps),
+            None => Ok(()),
+        }
     }
 
     /// Tabulates now the basis functions of every sender point whose direct sample is used,

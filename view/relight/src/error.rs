@@ -7,6 +7,9 @@ pub enum RelightError {
     /// columns) or was given inconsistent inputs.
     #[error("flattening operator: {0}")]
     FlattenOperator(String),
+    /// A setting outside its range.
+    #[error("{0}")]
+    Invalid(String),
     /// The flat basis cannot be built on the given basis.
     #[error("flat basis: {0}")]
     FlatBasis(#[from] mlt_format::FormatError),

@@ -79,10 +79,14 @@ pub struct RelightArgs {
     #[arg(long)]
     pub point_samples: bool,
     /// Leave the flat coefficients as flattened (the exact values of Eq. 6 at the flat
-    /// points), without the sharpening step `c' = 2 c - W c` that takes back the flat basis'
-    /// smoothing.
+    /// points), without the sharpening steps `c_{k+1} = c_k + c_0 - W c_k` that take back the
+    /// flat basis' smoothing.
     #[arg(long)]
     pub no_sharpen: bool,
+    /// Steps of the sharpening (iterated Shepard correction), 1 to 16: each takes back more of
+    /// the flat basis' smoothing for one more product of its weights `W`.
+    #[arg(long, default_value_t = mlt_relight::flatten_op::SHARPEN_STEPS)]
+    pub sharpen_steps: usize,
     /// Leave the finer receivers with the first bounce only, as the bake's `S` has them (the
     /// paper's relighting; also turns the bounce-light feedback off): by default, for a file
     /// whose bounces 2 and later were computed on the coarsest receivers, they are added at

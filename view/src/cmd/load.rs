@@ -95,6 +95,9 @@ pub fn with_viewing<T>(args: &BakedArgs, f: impl FnOnce(Viewing<'_>) -> Result<T
     relighter.adaptive_shadows = !relight.all_shadow_rays;
     relighter.support_average = !relight.point_samples;
     relighter.sharpen = !relight.no_sharpen;
+    relighter
+        .set_sharpen_steps(relight.sharpen_steps)
+        .context("--sharpen-steps")?;
     // Without the fine bounces (the paper's relighting) the feedback, which re-emits their
     // light, is left out too.
     if !relight.no_fine_bounces {

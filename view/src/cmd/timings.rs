@@ -77,6 +77,7 @@ fn relight_frames(args: &TimingsArgs, v: &mut Viewing<'_>) -> serde_json::Value 
         "median_shadow_rays_cast": median(rays),
         "support_average": !args.baked.relight.point_samples,
         "sharpen": !args.baked.relight.no_sharpen,
+        "sharpen_steps": args.baked.relight.sharpen_steps,
         "fine_bounces": v.relighter.fine_bounces,
         "bounce_feedback_steps": v.relighter.bounce_feedback,
         "lagged_feedback": v.relighter.lagged_feedback,

@@ -2,7 +2,7 @@
 //! be implemented on the GPU"): the precomputed sparse operator of
 //! `mlt_relight::flatten_op` uploaded once, applied per relit frame by a compute pass that
 //! writes the flat coefficients straight into the buffer the splatting pass reads, after the
-//! sharpening step `c' = 2 c - W c` when the relighter sharpens. Each row is summed in its
+//! sharpening steps `c_{k+1} = c_k + c_0 - W c_k` when the relighter sharpens. Each row is summed in its
 //! stored order, as on the CPU.
 
 use mlt_format::links::LINK_DIM;
@@ -13,11 +13,11 @@ use super::context::{Gpu, GpuError};
 
 const WORKGROUP: u32 = 64;
 
-/// The operator on the GPU, bound to an output buffer, and optionally the sharpening step
+/// The operator on the GPU, bound to an output buffer, and optionally the sharpening steps
 /// after it.
 pub struct GpuFlatten {
     pipeline: wgpu::ComputePipeline,
-    /// The flattening pass, then the sharpening pass if any.
+    /// The flattening pass, then the sharpening passes if any.
     stages: Vec<Stage>,
     hier: wgpu::Buffer,
     /// Hierarchical points read (`LINK_DIM` coefficients each).
@@ -59,85 +59,120 @@ fn float_buffer(gpu: &Gpu, label: &str, floats: usize, usage: wgpu::BufferUsages
     })
 }
 
-/// Uploads `op` and binds it to read `input` and write `output`; `mode` 1 makes it the
-/// sharpening step. Returns the stage and the bytes uploaded.
-fn stage(
-    gpu: &Gpu,
-    pipeline: &wgpu::ComputePipeline,
-    op: &FlattenOp,
-    input: &wgpu::Buffer,
-    output: &wgpu::Buffer,
-    mode: u32,
-) -> Result<(Stage, u64), GpuError> {
-    let device = &gpu.device;
-    let parts = op.parts();
-    let points = op.points();
-    let max_binding = device.limits().max_storage_buffer_binding_size as usize;
-    let largest = 4 * parts
-        .entries
-        .len()
-        .max(points.max(op.hier_points()) * LINK_DIM);
-    if largest > max_binding {
-        return Err(GpuError::Validation(format!(
-            "the flattening operator needs a {largest}-byte storage buffer; the adapter allows {max_binding}"
-        )));
+/// An operator's arrays on the GPU, with its dispatch grid and parameters.
+struct OpBuffers {
+    offsets: wgpu::Buffer,
+    packed: wgpu::Buffer,
+    block_offsets: wgpu::Buffer,
+    cols: wgpu::Buffer,
+    order: wgpu::Buffer,
+    params: wgpu::Buffer,
+    groups: (u32, u32),
+}
+
+impl OpBuffers {
+    /// Uploads `op`; `mode` 1 makes its passes sharpening steps.
+    fn upload(gpu: &Gpu, op: &FlattenOp, mode: u32) -> Result<OpBuffers, GpuError> {
+        let device = &gpu.device;
+        let parts = op.parts();
+        let points = op.points();
+        let max_binding = device.limits().max_storage_buffer_binding_size as usize;
+        let largest = 4 * parts
+            .entries
+            .len()
+            .max(points.max(op.hier_points()) * LINK_DIM);
+        if largest > max_binding {
+            return Err(GpuError::Validation(format!(
+                "the flattening operator needs a {largest}-byte storage buffer; the adapter allows {max_binding}"
+            )));
+        }
+        let total_groups = (points as u32).div_ceil(WORKGROUP).max(1);
+        let max_x = device.limits().max_compute_workgroups_per_dimension.max(1);
+        let groups = (total_groups.min(max_x), total_groups.div_ceil(max_x));
+        let params = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("flatten params"),
+            contents: bytemuck::cast_slice(&[
+                points as u32,
+                groups.0 * WORKGROUP,
+                BLOCK_ROWS as u32,
+                QUANTUM,
+                mode,
+                0,
+                0,
+                0,
+            ]),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        Ok(OpBuffers {
+            offsets: storage(
+                gpu,
+                "flatten offsets",
+                bytemuck::cast_slice(parts.row_offsets),
+            ),
+            packed: storage(gpu, "flatten entries", bytemuck::cast_slice(parts.entries)),
+            block_offsets: storage(
+                gpu,
+                "flatten block offsets",
+                bytemuck::cast_slice(parts.block_offsets),
+            ),
+            cols: storage(
+                gpu,
+                "flatten columns",
+                bytemuck::cast_slice(parts.block_cols),
+            ),
+            order: storage(gpu, "flatten order", bytemuck::cast_slice(parts.order)),
+            params,
+            groups,
+        })
     }
-    let offsets = storage(
-        gpu,
-        "flatten offsets",
-        bytemuck::cast_slice(parts.row_offsets),
-    );
-    let packed = storage(gpu, "flatten entries", bytemuck::cast_slice(parts.entries));
-    let block_offsets = storage(
-        gpu,
-        "flatten block offsets",
-        bytemuck::cast_slice(parts.block_offsets),
-    );
-    let cols = storage(
-        gpu,
-        "flatten columns",
-        bytemuck::cast_slice(parts.block_cols),
-    );
-    let order = storage(gpu, "flatten order", bytemuck::cast_slice(parts.order));
-    let total_groups = (points as u32).div_ceil(WORKGROUP).max(1);
-    let max_x = device.limits().max_compute_workgroups_per_dimension.max(1);
-    let groups = (total_groups.min(max_x), total_groups.div_ceil(max_x));
-    let params = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-        label: Some("flatten params"),
-        contents: bytemuck::cast_slice(&[
-            points as u32,
-            groups.0 * WORKGROUP,
-            BLOCK_ROWS as u32,
-            QUANTUM,
-            mode,
-            0,
-            0,
-            0,
-        ]),
-        usage: wgpu::BufferUsages::UNIFORM,
-    });
-    let layout = pipeline.get_bind_group_layout(0);
-    let buffers = [
-        &offsets,
-        &packed,
-        &block_offsets,
-        &cols,
-        &order,
-        input,
-        output,
-        &params,
-    ];
-    let resources = buffers.map(|b| b.as_entire_binding());
-    let bind_group = super::pipeline::bind_group(device, "flatten", &layout, &resources);
-    let bytes = [&offsets, &packed, &block_offsets, &cols, &order]
+
+    /// Bytes uploaded for the operator's arrays.
+    fn bytes(&self) -> u64 {
+        [
+            &self.offsets,
+            &self.packed,
+            &self.block_offsets,
+            &self.cols,
+            &self.order,
+        ]
         .iter()
         .map(|b| b.size())
-        .sum();
-    Ok((Stage { bind_group, groups }, bytes))
+        .sum()
+    }
+
+    /// A pass of the operator that reads `input` (and, for a sharpening step, the
+    /// unsharpened coefficients `original`) and writes `output`.
+    fn stage(
+        &self,
+        gpu: &Gpu,
+        pipeline: &wgpu::ComputePipeline,
+        input: &wgpu::Buffer,
+        original: &wgpu::Buffer,
+        output: &wgpu::Buffer,
+    ) -> Stage {
+        let layout = pipeline.get_bind_group_layout(0);
+        let buffers = [
+            &self.offsets,
+            &self.packed,
+            &self.block_offsets,
+            &self.cols,
+            &self.order,
+            input,
+            output,
+            &self.params,
+            original,
+        ];
+        let resources = buffers.map(|b| b.as_entire_binding());
+        let bind_group = super::pipeline::bind_group(&gpu.device, "flatten", &layout, &resources);
+        Stage {
+            bind_group,
+            groups: self.groups,
+        }
+    }
 }
 
 impl GpuFlatten {
-    /// Uploads `op` (and `sharpen`, the sharpening step after it); the passes write
+    /// Uploads `op` (and `sharpen`, the sharpening steps after it); the passes write
     /// `LINK_DIM` floats per flat point into `output` (a storage buffer of at least that
     /// size).
     pub fn new(
@@ -168,20 +203,46 @@ impl GpuFlatten {
             cache: None,
         });
         let mut bytes = hier.size();
-        let mut stages = Vec::with_capacity(2);
+        let mut stages = Vec::new();
+        let flatten = OpBuffers::upload(gpu, op, 0)?;
+        bytes += flatten.bytes();
         match sharpen {
             Some(sharpen) if sharpen.points() == op.points() => {
+                // The flattened coefficients `c_0` stay in `unsharpened`; the steps before
+                // the last write to two buffers in turn, the last one to `output`.
+                let floats = op.points() * LINK_DIM;
                 let unsharpened = float_buffer(
                     gpu,
                     "unsharpened flat coefficients",
-                    op.points() * LINK_DIM,
+                    floats,
                     wgpu::BufferUsages::empty(),
                 );
-                let (first, b0) = stage(gpu, &pipeline, op, &hier, &unsharpened, 0)?;
-                let (second, b1) =
-                    stage(gpu, &pipeline, sharpen.smoothing(), &unsharpened, output, 1)?;
-                bytes += b0 + b1 + unsharpened.size();
-                stages.extend([first, second]);
+                let steps = sharpen.steps().max(1);
+                let between: Vec<wgpu::Buffer> = (0..(steps - 1).min(2))
+                    .map(|_| {
+                        float_buffer(
+                            gpu,
+                            "flat coefficients between sharpening steps",
+                            floats,
+                            wgpu::BufferUsages::empty(),
+                        )
+                    })
+                    .collect();
+                let smoothing = OpBuffers::upload(gpu, sharpen.smoothing(), 1)?;
+                stages.push(flatten.stage(gpu, &pipeline, &hier, &hier, &unsharpened));
+                let mut input = &unsharpened;
+                for step in 0..steps {
+                    let out = if step + 1 == steps {
+                        output
+                    } else {
+                        &between[step % 2]
+                    };
+                    stages.push(smoothing.stage(gpu, &pipeline, input, &unsharpened, out));
+                    input = out;
+                }
+                bytes += smoothing.bytes()
+                    + unsharpened.size()
+                    + between.iter().map(wgpu::Buffer::size).sum::<u64>();
             }
             Some(sharpen) => {
                 return Err(GpuError::Validation(format!(
@@ -190,11 +251,7 @@ impl GpuFlatten {
                     op.points()
                 )))
             }
-            None => {
-                let (first, b0) = stage(gpu, &pipeline, op, &hier, output, 0)?;
-                bytes += b0;
-                stages.push(first);
-            }
+            None => stages.push(flatten.stage(gpu, &pipeline, &hier, &hier, output)),
         }
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(GpuError::Validation(e.to_string()));
@@ -217,7 +274,7 @@ impl GpuFlatten {
         }
         gpu.queue
             .write_buffer(&self.hier, 0, bytemuck::cast_slice(&i[..n]));
-        // One compute pass per stage: the second reads what the first wrote.
+        // One compute pass per stage: each reads what the one before wrote.
         for stage in &self.stages {
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("flatten"),

@@ -33,7 +33,7 @@
 //! on one machine.
 //!
 //! The module is in four parts: `build` (rows from the basis, quantised, in blocks),
-//! `kernels` (the products), `sharpen` (the correction step applied to the flat coefficients
+//! `kernels` (the products), `sharpen` (the correction steps applied to the flat coefficients
 //! after the product, [`SharpenOp`]) and, here, the operator and its public interface.
 
 mod build;
@@ -45,7 +45,7 @@ use mlt_format::flat_basis::FlatBasis;
 use rayon::prelude::*;
 
 pub use kernels::Kernel;
-pub use sharpen::{SharpenOp, SharpenScratch};
+pub use sharpen::{SharpenOp, SharpenScratch, MAX_SHARPEN_STEPS, SHARPEN_STEPS};
 
 /// Points per block of the parallel build and of the reordering pass.
 const BUILD_BLOCK: usize = 2048;

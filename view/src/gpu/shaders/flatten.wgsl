@@ -2,14 +2,16 @@
 // the relighting crate's flatten_op applied to the hierarchical coefficients `i`, one invocation per
 // flat point, each row summed in its stored order. An entry packs the block-local column (low
 // 16 bits) and the value as a fraction of `counts.w` (high 16 bits). The same shader runs the
-// sharpening step after it (`mode.x` = 1): the operator is then the flat basis' smoothing `W`,
-// `hier` holds the flat coefficients `c` of the first pass and the output is `2 c - W c`.
+// sharpening steps after it (`mode.x` = 1): the operator is then the flat basis' smoothing `W`,
+// `hier` holds the flat coefficients `c_k` of the step before, `original` those of the first
+// pass, `c_0`, and the output is `c_{k+1} = c_k + c_0 - W c_k`.
 
 struct Params {
     // x: number of points; y: invocations per row of the dispatch grid; z: rows per block;
     // w: the values' fixed-point scale.
     counts: vec4<u32>,
-    // x: 0 writes the row's sum; 1 writes twice the point's own input minus the row's sum.
+    // x: 0 writes the row's sum; 1 writes the point's own input and original value minus the
+    // row's sum.
     mode: vec4<u32>,
 };
 
@@ -21,6 +23,7 @@ struct Params {
 @group(0) @binding(5) var<storage, read> hier: array<f32>;
 @group(0) @binding(6) var<storage, read_write> flat: array<f32>;
 @group(0) @binding(7) var<uniform> params: Params;
+@group(0) @binding(8) var<storage, read> original: array<f32>;
 
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) id: vec3<u32>) {
@@ -46,7 +49,7 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     let j = order[pos] * 9u;
     if params.mode.x == 1u {
         for (var d = 0u; d < 9u; d++) {
-            flat[j + d] = 2.0 * hier[j + d] - acc[d];
+            flat[j + d] = hier[j + d] + original[j + d] - acc[d];
         }
     } else {
         for (var d = 0u; d < 9u; d++) {
