@@ -23,8 +23,8 @@
 //!   representative emission `e` (the file light's direct irradiance at the sender points,
 //!   sampled and pull-pushed onto the sender levels as the viewer does) expanded over every
 //!   level (Eq. 6); and its every bounce, the same of what a frame of the viewer gives under
-//!   `e` ([`frame_coefficients`]: `S e`, and the finer receivers' later bounces chained
-//!   through level 0 where the file leaves them to the viewer).
+//!   `e` ([`frame_coefficients`]: `S e`, and the finer receivers' later bounces re-emitted
+//!   from every sender point where the file leaves them to the viewer).
 //!
 //! Each times `ρ`, averaged over the cells, a miss adding zero (the image's mean radiance,
 //! times `π`). A share `1 - Y(file) / Y(traced)` (Rec. 709 luminance) is what the image lacks
@@ -44,6 +44,7 @@ use glam::Vec3;
 use mlt_format::light_model::Light;
 use mlt_format::links::{Links, LINK_DIM};
 use mlt_format::meta::{CameraCheck, CameraInfo};
+use mlt_format::pull_push::pull_push_levels;
 use mlt_format::IndexedBasis;
 use mlt_scenes::one_bounce::{OneBounce, PointLight};
 use mlt_scenes::RayCaster;
@@ -89,10 +90,12 @@ impl CheckSettings {
 type Cell = Option<[[f64; 3]; 4]>;
 
 /// What a frame of the viewer gives at the receivers (9 floats per point): `i = S e` from the
-/// stored `links` under the sender coefficients `e`, and with `fine` the finer receivers'
-/// bounces 2 and later chained through the level-0 senders, `i_r += sum_j S_rj (n_j . i_j)`
-/// over level-0 senders `j` and receivers `r` above level 0 (the viewer's fine bounces, for a
-/// file whose bounces ran on the coarsest receivers only).
+/// stored `links` under the sender coefficients `e` (RGB per sender point), and with `fine`
+/// the finer receivers' bounces 2 and later as the viewer adds them by default for a file
+/// whose bounces ran on the coarsest receivers only (`mlt_relight::FineEmission::Senders`):
+/// the indirect light at every sender point `p`, `n_p . sum_l sum_k i_k B^l_k(p)` (Eq. 6),
+/// pull-pushed onto the sender levels as the direct light is, re-emitted through the rows of
+/// the receivers above level 0, `i_r += sum_s S_rs y_s`.
 pub fn frame_coefficients(ib: &IndexedBasis, links: &Links, e: &[f32], fine: bool) -> Vec<f32> {
     let b = &ib.basis;
     let n0 = b.level_range(0).len();
@@ -122,15 +125,35 @@ pub fn frame_coefficients(ib: &IndexedBasis, links: &Links, e: &[f32], fine: boo
             }
         }
     });
-    if fine {
-        let y: Vec<[f32; 3]> = (0..n0)
-            .map(|j| along(&i[j * LINK_DIM..(j + 1) * LINK_DIM], b.normals[j]))
+    // The sender levels: those whose points `e` covers.
+    let sender_levels = (0..=b.levels())
+        .find(|&l| b.level_offsets[l] as usize * 3 >= e.len())
+        .unwrap_or(b.levels());
+    let senders = b.level_offsets[sender_levels] as usize;
+    if fine && senders * 3 == e.len() {
+        let samples: Vec<f32> = (0..senders)
+            .into_par_iter()
+            .flat_map_iter(|p| {
+                let mut v = [0.0f32; LINK_DIM];
+                ib.reconstruct(
+                    &i,
+                    LINK_DIM,
+                    0..b.levels(),
+                    b.positions[p],
+                    b.normals[p],
+                    &mut v,
+                );
+                along(&v, b.normals[p])
+            })
             .collect();
+        let (y, _) = pull_push_levels(ib, &samples, 3, sender_levels);
         columns(&mut |s, r, v| {
-            if s < n0 && r >= n0 && r < b.len() {
-                let out = &mut i[r * LINK_DIM..(r + 1) * LINK_DIM];
-                for k in 0..LINK_DIM {
-                    out[k] += y[s][k / 3] * v[k];
+            if r >= n0 && r < b.len() {
+                if let Some(ys) = y.get(3 * s..3 * s + 3) {
+                    let out = &mut i[r * LINK_DIM..(r + 1) * LINK_DIM];
+                    for k in 0..LINK_DIM {
+                        out[k] += ys[k / 3] * v[k];
+                    }
                 }
             }
         });
@@ -278,7 +301,7 @@ mod tests {
     }
 
     #[test]
-    fn a_frame_adds_the_finer_receivers_bounces_through_level_0() {
+    fn a_frame_adds_the_finer_receivers_bounces_from_every_sender_point() {
         use mlt_format::links::SenderLinks;
         use mlt_format::test_support::plane_basis;
         let ib = plane_basis(2, 2);
@@ -308,9 +331,34 @@ mod tests {
         let fine = frame_coefficients(&ib, &links, &e, true);
         let z = |v: &[f32], p: usize| v[p * LINK_DIM + 2];
         assert_eq!((z(&plain, 0), z(&plain, n0)), (2.0, 1.0));
-        // Level 0's irradiance 2 (normal +z) re-emitted through the 0.5 link: 1 more; level 0
-        // itself gets nothing more.
+        // The emission at sender 0 is the frame's irradiance there, over every level (level
+        // 0's 2 and the finer point's 1 where its function reaches), pull-pushed onto the one
+        // sender level; re-emitted through the 0.5 link to the finer point. Level 0 itself
+        // gets nothing more.
+        let samples: Vec<f32> = (0..n0)
+            .flat_map(|p| {
+                let mut w = [0.0f32; LINK_DIM];
+                ib.reconstruct(
+                    &plain,
+                    LINK_DIM,
+                    0..b.levels(),
+                    b.positions[p],
+                    b.normals[p],
+                    &mut w,
+                );
+                along(&w, b.normals[p])
+            })
+            .collect();
+        let (y, _) = pull_push_levels(&ib, &samples, 3, 1);
         assert_eq!(b.normals[0], [0.0, 0.0, 1.0]);
-        assert_eq!((z(&fine, 0), z(&fine, n0)), (2.0, 2.0));
+        assert!(y[0] > 1.0, "{y:?}");
+        assert_eq!(z(&fine, 0), 2.0);
+        assert!(
+            (z(&fine, n0) - (1.0 + 0.5 * y[0])).abs() < 1e-6,
+            "{}",
+            z(&fine, n0)
+        );
+        // The finer points without links get nothing.
+        assert!((n0 + 1..len).all(|p| z(&fine, p) == 0.0));
     }
 }

@@ -12,6 +12,7 @@ use mlt_format::links::LINK_DIM;
 use mlt_format::pull_push::pull_push_levels;
 use mlt_format::BakedFile;
 use mlt_relight::flatten_op::SHARPEN_STEPS;
+use mlt_relight::FineEmission;
 use mlt_view::probe::{evaluate, Probe};
 use mlt_view::{CpuRelighter, Light, Relight};
 
@@ -387,6 +388,9 @@ fn the_bounce_feedback_step_is_its_operators_in_order_and_thread_independent() {
             let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, 4)
                 .expect("relighting operators");
             r.fine_bounces = true;
+            // The feedback is built on the level-0 emission (with no step the default would
+            // emit from every sender point instead: the next test).
+            r.fine_emission = FineEmission::Level0;
             r.bounce_feedback = steps;
             r.relight(&light).clone()
         })
@@ -430,6 +434,60 @@ fn the_bounce_feedback_step_is_its_operators_in_order_and_thread_independent() {
     for (k, (a, b)) in frame.i.iter().zip(&finer_only).enumerate().skip(n0) {
         assert!((a - b).abs() <= 1e-5 * scale, "{k}: {a} vs {b}");
     }
+}
+
+/// With the fine bounces emitted from every sender point (the default without the feedback),
+/// the frame's `i` is `S e`, then the finer receivers' rows of `S` applied to the pull-pushed
+/// indirect light at the sender points (`BounceFeedbackOp::emission`), bit for bit as the
+/// operators give it and the same for 1 and 2 threads: level 0's rows are `S e`'s, the finer
+/// receivers change, and the added light is the rows' product of that emission
+/// and nothing else (the level-0 emission through level-0 links differs).
+#[test]
+fn fine_bounces_from_every_sender_point_are_the_finer_rows_of_s_on_the_bounce_emission() {
+    use mlt_relight::{BounceFeedbackOp, FineBounceOp, PullPushOp, ReceiverLinks};
+    let (_d, file, ib, sender_levels, caster) = small_cornell("senders", 64);
+    let lb = file.links_bytes().unwrap().unwrap();
+    let links = file.access_links(&lb).unwrap();
+    let light = Light::point(Vec3::new(0.278, 0.5, 0.28), [0.3, 0.25, 0.2]).unwrap();
+    let run = |threads: usize, emission: FineEmission| {
+        with_threads(threads, || {
+            let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, 4)
+                .expect("relighting operators");
+            r.fine_bounces = true;
+            assert_eq!(r.fine_emission, FineEmission::Senders);
+            r.fine_emission = emission;
+            r.relight(&light).clone()
+        })
+    };
+    let frame = run(2, FineEmission::Senders);
+    assert_eq!(bits(&frame.i), bits(&run(1, FineEmission::Senders).i));
+
+    let max_e = frame.e.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    let s = ReceiverLinks::build(links);
+    let mut i = vec![0.0f32; ib.basis.len() * LINK_DIM];
+    s.apply(&frame.e, 1e-4 * max_e, &mut i);
+    let plain = i.clone();
+    let pp = PullPushOp::build(&ib, sender_levels);
+    let y = BounceFeedbackOp::build(&ib, links, sender_levels).emission(&pp, &i);
+    let max_y = y.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    let n0 = ib.basis.level_range(0).len();
+    s.apply_add_from(&y, 1e-4 * max_y, n0, &mut i);
+    assert_eq!(bits(&frame.i), bits(&i));
+
+    // Level 0 keeps `S e`; the finer receivers' coefficients change (their rows are Eq. 17
+    // differences, so a receiver may gain or lose), and the level-0 way gives other values.
+    let m0 = n0 * LINK_DIM;
+    assert_eq!(bits(&frame.i[..m0]), bits(&plain[..m0]));
+    let changed = (n0..ib.basis.len())
+        .filter(|&r| {
+            frame.i[r * LINK_DIM..(r + 1) * LINK_DIM] != plain[r * LINK_DIM..(r + 1) * LINK_DIM]
+        })
+        .count();
+    assert!(changed > 0);
+    let mut level0 = plain.clone();
+    FineBounceOp::build(&ib, links).apply(&mut level0);
+    assert_ne!(bits(&level0), bits(&frame.i));
+    assert_eq!(bits(&run(1, FineEmission::Level0).i), bits(&level0));
 }
 
 #[test]

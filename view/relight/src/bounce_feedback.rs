@@ -121,9 +121,10 @@ impl BounceFeedbackOp {
         12 * self.normals.len() + 4 * (self.offsets.len() + self.columns.len() + self.weights.len())
     }
 
-    /// The correction `d = P-dagger (n . R v) - y(v)` of the senders' emission for indirect
-    /// light `v` (9 floats per point): RGB per sender point.
-    pub fn correction(&self, pull_push: &PullPushOp, v: &[f32]) -> Vec<f32> {
+    /// The emission `P-dagger (n . R v)` of indirect light `v` (9 floats per point): its
+    /// irradiance at every sender point, reconstructed over every level (Eq. 6) and
+    /// pull-pushed onto the sender levels as the direct light is; RGB per sender point.
+    pub fn emission(&self, pull_push: &PullPushOp, v: &[f32]) -> Vec<f32> {
         let senders = self.normals.len();
         let mut d = vec![0.0f32; 3 * senders];
         d.par_chunks_mut(3 * POINT_CHUNK)
@@ -144,6 +145,13 @@ impl BounceFeedbackOp {
             });
         pull_push.pull(&mut d, 3);
         pull_push.push(&mut d, 3);
+        d
+    }
+
+    /// The correction `d = P-dagger (n . R v) - y(v)` of the senders' emission for indirect
+    /// light `v` (9 floats per point): RGB per sender point.
+    pub fn correction(&self, pull_push: &PullPushOp, v: &[f32]) -> Vec<f32> {
+        let mut d = self.emission(pull_push, v);
         let y = level0_emission(&self.normals[..self.coarsest], v);
         for (a, y) in d.iter_mut().zip(y) {
             *a -= y;

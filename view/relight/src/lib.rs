@@ -34,7 +34,7 @@ pub mod relight;
 pub use mlt_format::support_average;
 
 pub use bounce_feedback::BounceFeedbackOp;
-pub use cpu::{CpuRelighter, LoadStats};
+pub use cpu::{CpuRelighter, FineEmission, LoadStats};
 pub use error::RelightError;
 pub use fine_bounce::FineBounceOp;
 pub use flatten_op::{

@@ -32,8 +32,8 @@ pub struct ReceiverLinks {
 }
 
 /// The sender weights of a product: those of most rows, those of the rows of receivers
-/// `0..m`, and `m`.
-type SenderWeights<'a> = (&'a [[f32; LINK_DIM]], &'a [[f32; LINK_DIM]], usize);
+/// `0..m`, `m`, and the receivers below which rows are skipped (neither computed nor written).
+type SenderWeights<'a> = (&'a [[f32; LINK_DIM]], &'a [[f32; LINK_DIM]], usize, usize);
 
 /// Receivers per parallel task of [`ReceiverLinks::apply`].
 const RECEIVER_CHUNK: usize = 1024;
@@ -135,7 +135,7 @@ impl ReceiverLinks {
     ///
     /// Panics unless `e.len() >= 3 * senders` and `i.len() == 9 * receivers`.
     pub fn apply(&self, e: &[f32], threshold: f32, i: &mut [f32]) -> usize {
-        self.apply_impl::<false>(e, None, threshold, self.receivers as usize, i)
+        self.apply_impl::<false>(e, None, 0, threshold, self.receivers as usize, i)
     }
 
     /// [`ReceiverLinks::apply`] with the rows of the first `m` receivers (points `0..m`)
@@ -150,7 +150,14 @@ impl ReceiverLinks {
         threshold: f32,
         i: &mut [f32],
     ) -> usize {
-        self.apply_impl::<false>(e, Some((e_first, m)), threshold, self.receivers as usize, i)
+        self.apply_impl::<false>(
+            e,
+            Some((e_first, m)),
+            0,
+            threshold,
+            self.receivers as usize,
+            i,
+        )
     }
 
     /// [`ReceiverLinks::apply`] on the rows of the first `m` receivers only (points `0..m`,
@@ -159,7 +166,7 @@ impl ReceiverLinks {
     /// most the number of receivers.
     pub fn apply_first(&self, e: &[f32], threshold: f32, m: usize, i: &mut [f32]) -> usize {
         assert!(m <= self.receivers as usize);
-        self.apply_impl::<false>(e, None, threshold, m, i)
+        self.apply_impl::<false>(e, None, 0, threshold, m, i)
     }
 
     /// `i += S e` over the receivers with links (the others are left as they are), each
@@ -167,15 +174,23 @@ impl ReceiverLinks {
     /// [`ArchivedLinks::apply`] into a zeroed vector, added to `i`. `e` needs entries only
     /// for the senders held. Returns the number of senders used.
     pub fn apply_add(&self, e: &[f32], threshold: f32, i: &mut [f32]) -> usize {
-        self.apply_impl::<true>(e, None, threshold, self.receivers as usize, i)
+        self.apply_impl::<true>(e, None, 0, threshold, self.receivers as usize, i)
     }
 
-    /// `i (+)= S e` over the rows of the receivers `0..n`; with `first = (e_first, m)` the
+    /// [`ReceiverLinks::apply_add`] over the rows of receivers `m` and above only (points
+    /// `m..`; the rows of points `0..m` are neither computed nor written): each of those rows'
+    /// bits are `apply_add`'s. Panics unless `i` holds 9 floats per receiver.
+    pub fn apply_add_from(&self, e: &[f32], threshold: f32, m: usize, i: &mut [f32]) -> usize {
+        self.apply_impl::<true>(e, None, m, threshold, self.receivers as usize, i)
+    }
+
+    /// `i (+)= S e` over the rows of the receivers `skip..n`; with `first = (e_first, m)` the
     /// rows of receivers `0..m` use `e_first` instead.
     fn apply_impl<const ADD: bool>(
         &self,
         e: &[f32],
         first: Option<(&[f32], usize)>,
+        skip: usize,
         threshold: f32,
         n: usize,
         i: &mut [f32],
@@ -219,10 +234,10 @@ impl ReceiverLinks {
             if f16c {
                 // SAFETY: this CPU has AVX2 and F16C (checked above), the only requirement for
                 // calling a function compiled with them.
-                unsafe { self.chunk_f16c::<ADD>((&w, w_first, m), c, rows, first, out) };
+                unsafe { self.chunk_f16c::<ADD>((&w, w_first, m, skip), c, rows, first, out) };
                 return;
             }
-            self.chunk::<ADD, false>((&w, w_first, m), c, rows, first, out);
+            self.chunk::<ADD, false>((&w, w_first, m, skip), c, rows, first, out);
         });
         used
     }
@@ -264,13 +279,13 @@ impl ReceiverLinks {
 
     /// The receivers of chunk `c` (of the first `rows` linked receivers) into `out` (added
     /// to it with `ADD`), which starts at point `first`; receivers below `w.2` use the
-    /// weights `w.1`, the others `w.0`.
+    /// weights `w.1`, the others `w.0`; receivers below `w.3` are skipped.
     /// With `F16C` the values are converted by [`decode_f16c`], which the caller must have
     /// checked the CPU for (only [`ReceiverLinks::chunk_f16c`] sets it).
     #[inline(always)]
     fn chunk<const ADD: bool, const F16C: bool>(
         &self,
-        (w_rest, w_first, m): SenderWeights<'_>,
+        (w_rest, w_first, m, skip): SenderWeights<'_>,
         c: usize,
         rows: usize,
         first: usize,
@@ -283,6 +298,9 @@ impl ReceiverLinks {
         let qs = c * RECEIVER_CHUNK..((c + 1) * RECEIVER_CHUNK).min(rows);
         for q in qs {
             let point = receivers[q] as usize;
+            if point < skip {
+                continue;
+            }
             let w = if point < m { w_first } else { w_rest };
             let r = point - first;
             let (a, b) = (self.offsets[q] as usize, self.offsets[q + 1] as usize);
@@ -443,6 +461,23 @@ mod tests {
             let mut first = vec![f32::NAN; m * 9];
             assert_eq!(rl.apply_first(&e, 0.0, m, &mut first), 6);
             assert_eq!(bits(&first), bits(&full[..m * 9]), "first {m}");
+        }
+    }
+
+    #[test]
+    fn the_rows_from_m_on_are_added_with_the_bits_of_the_added_product_and_the_rest_untouched() {
+        let bytes = sample_bytes();
+        let a = validated(&bytes);
+        let rl = ReceiverLinks::build(a);
+        let e = sample_emission();
+        let start: Vec<f32> = (0..14 * 9).map(|k| (k as f32 * 0.37).cos()).collect();
+        let mut all = start.clone();
+        rl.apply_add(&e, 0.0, &mut all);
+        for m in [0, 1, 5, 12, 14] {
+            let mut got = start.clone();
+            rl.apply_add_from(&e, 0.0, m, &mut got);
+            assert_eq!(bits(&got[..m * 9]), bits(&start[..m * 9]), "below {m}");
+            assert_eq!(bits(&got[m * 9..]), bits(&all[m * 9..]), "from {m}");
         }
     }
 

@@ -79,6 +79,7 @@ fn relight_frames(args: &TimingsArgs, v: &mut Viewing<'_>) -> serde_json::Value 
         "sharpen": !args.baked.relight.no_sharpen,
         "sharpen_steps": args.baked.relight.sharpen_steps,
         "fine_bounces": v.relighter.fine_bounces,
+        "fine_emission": v.relighter.fine_emission,
         "bounce_feedback_steps": v.relighter.bounce_feedback,
         "lagged_feedback": v.relighter.lagged_feedback,
         "median_averaged_points": median(averaged),
