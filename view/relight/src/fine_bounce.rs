@@ -1,4 +1,8 @@
-//! Bounces 2 and later at the finer receivers, applied per frame ([`FineBounceOp`]).
+//! Bounces 2 and later at the finer receivers, applied per frame ([`FineBounceOp`]), from the
+//! level-0 coefficients: the viewer's cheaper choice (`crate::cpu::FineEmission::Level0`)
+//! and the one the bounce-light feedback builds on. By default the viewer re-emits the bounce
+//! light from every sender point instead (`crate::cpu::FineEmission::Senders`), which gives
+//! the surfaces that no level-0 point faces their own bounce light.
 //!
 //! The bake computes bounces 2 and later on the coarsest receivers only (section 3.2, as the
 //! paper does): bounce `b` at a level-0 receiver is `K (n . X_{b-1})`, with `K` the level-0
