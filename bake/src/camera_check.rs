@@ -90,13 +90,19 @@ impl CheckSettings {
 type Cell = Option<[[f64; 3]; 4]>;
 
 /// What a frame of the viewer gives at the receivers (9 floats per point): `i = S e` from the
-/// stored `links` under the sender coefficients `e` (RGB per sender point), and with `fine`
-/// the finer receivers' bounces 2 and later as the viewer adds them by default for a file
-/// whose bounces ran on the coarsest receivers only (`mlt_relight::FineEmission::Senders`):
-/// the indirect light at every sender point `p`, `n_p . sum_l sum_k i_k B^l_k(p)` (Eq. 6),
-/// pull-pushed onto the sender levels as the direct light is, re-emitted through the rows of
-/// the receivers above level 0, `i_r += sum_s S_rs y_s`.
-pub fn frame_coefficients(ib: &IndexedBasis, links: &Links, e: &[f32], fine: bool) -> Vec<f32> {
+/// stored `links` under the sender coefficients `e` (RGB per point of the first
+/// `sender_levels` levels), and with `fine` the finer receivers' bounces 2 and later as the
+/// viewer adds them by default for a file whose bounces ran on the coarsest receivers only
+/// (`mlt_relight::FineEmission::Senders`): the indirect light at every sender point `p`,
+/// `n_p . sum_l sum_k i_k B^l_k(p)` (Eq. 6), pull-pushed onto the sender levels as the direct
+/// light is, re-emitted through the rows of the receivers above level 0,
+/// `i_r += sum_s S_rs y_s`. Panics unless `e` holds 3 floats per sender point.
+pub fn frame_coefficients(
+    ib: &IndexedBasis,
+    links: &Links,
+    (e, sender_levels): (&[f32], usize),
+    fine: bool,
+) -> Vec<f32> {
     let b = &ib.basis;
     let n0 = b.level_range(0).len();
     let mut i = vec![0.0f32; b.len() * LINK_DIM];
@@ -125,12 +131,9 @@ pub fn frame_coefficients(ib: &IndexedBasis, links: &Links, e: &[f32], fine: boo
             }
         }
     });
-    // The sender levels: those whose points `e` covers.
-    let sender_levels = (0..=b.levels())
-        .find(|&l| b.level_offsets[l] as usize * 3 >= e.len())
-        .unwrap_or(b.levels());
-    let senders = b.level_offsets[sender_levels] as usize;
-    if fine && senders * 3 == e.len() {
+    let senders = b.level_offsets[sender_levels.min(b.levels())] as usize;
+    assert_eq!(e.len(), 3 * senders, "one RGB emission per sender point");
+    if fine {
         let samples: Vec<f32> = (0..senders)
             .into_par_iter()
             .flat_map_iter(|p| {
@@ -327,8 +330,8 @@ mod tests {
         );
         let mut e = vec![0.0f32; 3 * n0];
         e[..3].copy_from_slice(&[2.0, 2.0, 2.0]);
-        let plain = frame_coefficients(&ib, &links, &e, false);
-        let fine = frame_coefficients(&ib, &links, &e, true);
+        let plain = frame_coefficients(&ib, &links, (&e, 1), false);
+        let fine = frame_coefficients(&ib, &links, (&e, 1), true);
         let z = |v: &[f32], p: usize| v[p * LINK_DIM + 2];
         assert_eq!((z(&plain, 0), z(&plain, n0)), (2.0, 1.0));
         // The emission at sender 0 is the frame's irradiance there, over every level (level

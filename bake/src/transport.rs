@@ -265,19 +265,25 @@ pub fn refinement_warning(drop: &RefinementDrop, epsilon: f32, tolerance: f64) -
 }
 
 /// The check of the light at the scene's camera (`camera_check`): T's first bounce and the
-/// viewer's frame from S (`fine`: with the finer receivers' later bounces chained through
-/// level 0), as a stage of the bake's report; `None` when the camera is degenerate.
+/// viewer's frame from S (`fine`: with the finer receivers' later bounces re-emitted from
+/// every point of the `sender_levels` sender levels), as a stage of the bake's report; `None`
+/// when the camera is degenerate or T carries no representative emission over those levels.
 fn check_at_camera(
     ib: &IndexedBasis,
     (t, links, fine): (&ReceiverLinks, &Links, bool),
+    sender_levels: usize,
     scene: CheckScene<'_>,
     seed: u64,
     obs: &dyn Observer,
 ) -> Option<CameraCheck> {
+    let senders = ib.basis.level_offsets[sender_levels.min(ib.levels())] as usize;
+    if t.emission.len() != 3 * senders {
+        return None;
+    }
     obs.stage("light checked at the camera");
     let t0 = Instant::now();
     let settings = CheckSettings::new(seed);
-    let frame = frame_coefficients(ib, links, &t.emission, fine);
+    let frame = frame_coefficients(ib, links, (&t.emission, sender_levels), fine);
     let c = camera_check(
         ib,
         scene.caster,
@@ -469,8 +475,16 @@ pub fn finish_transport(
     // (`mlt_relight::FineBounceOp::applies_to`: bounces on the coarsest receivers only, more
     // than one), so its frame, which the check compares, has them.
     let fine = !params.bounces_on_all_receivers && run.report.bounces >= 2;
-    let camera_check =
-        check.and_then(|c| check_at_camera(ib, (&t, &p.links, fine), c, params.seed, obs));
+    let camera_check = check.and_then(|c| {
+        check_at_camera(
+            ib,
+            (&t, &p.links, fine),
+            params.sender_levels as usize,
+            c,
+            params.seed,
+            obs,
+        )
+    });
     let SeriesRun {
         rho,
         needed,

@@ -108,7 +108,7 @@ pub fn mix_levels(level_offsets: &[u32], oracle: &[f32], levels: Range<usize>, i
 /// coefficients replaced by the oracle's (on every level, or on the levels of
 /// [`OracleRelighter::with_levels`]) and flattened on the CPU by the viewer's sparse
 /// operator over every point (the bake's relighter keeps only points with links), then
-/// sharpened as the bake's relighter does.
+/// sharpened as the inner relighter sharpens (the same number of steps, or not at all).
 pub struct OracleRelighter<'a> {
     inner: &'a mut dyn Relight,
     level_offsets: Vec<u32>,
@@ -118,7 +118,8 @@ pub struct OracleRelighter<'a> {
     flat: FlatBasis,
     op: FlattenOp,
     scratch: FlattenScratch,
-    sharpen: SharpenOp,
+    /// The inner relighter's sharpening on this flat basis; `None` when it does not sharpen.
+    sharpen: Option<SharpenOp>,
     sharpen_scratch: SharpenScratch,
     frame: Frame,
 }
@@ -133,7 +134,14 @@ impl<'a> OracleRelighter<'a> {
     ) -> Result<OracleRelighter<'a>, mlt_relight::RelightError> {
         let flat = FlatBasis::build(ib, None)?;
         let op = FlattenOp::build(ib, &flat, None)?;
-        let sharpen = SharpenOp::build(&flat)?;
+        let sharpen = match inner.sharpen_operator().map(SharpenOp::steps) {
+            Some(steps) => {
+                let mut op = SharpenOp::build(&flat)?;
+                op.set_steps(steps)?;
+                Some(op)
+            }
+            None => None,
+        };
         Ok(OracleRelighter {
             inner,
             level_offsets: ib.basis.level_offsets.clone(),
@@ -176,8 +184,9 @@ impl Relight for OracleRelighter<'_> {
         frame.flat.resize(self.op.points() * LINK_DIM, 0.0);
         self.op
             .apply(&frame.i, LINK_DIM, &mut frame.flat, &mut self.scratch);
-        self.sharpen
-            .apply(&mut frame.flat, LINK_DIM, &mut self.sharpen_scratch);
+        if let Some(sharpen) = &self.sharpen {
+            sharpen.apply(&mut frame.flat, LINK_DIM, &mut self.sharpen_scratch);
+        }
         self.frame = frame;
         &self.frame
     }
@@ -186,6 +195,70 @@ impl Relight for OracleRelighter<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use mlt_format::test_support::plane_basis;
+
+    /// An inner relighter with no light of its own that sharpens with `steps` steps (or not).
+    struct Inner {
+        flat: FlatBasis,
+        sharpen: Option<SharpenOp>,
+        frame: Frame,
+    }
+
+    impl Relight for Inner {
+        fn relight(&mut self, _: &Light) -> &Frame {
+            &self.frame
+        }
+        fn flat_basis(&self) -> &FlatBasis {
+            &self.flat
+        }
+        fn sharpen_operator(&self) -> Option<&SharpenOp> {
+            self.sharpen.as_ref()
+        }
+    }
+
+    #[test]
+    fn the_oracle_sharpens_as_the_inner_relighter_does() {
+        let ib = plane_basis(3, 3);
+        let flat = FlatBasis::build(&ib, None).unwrap();
+        // Coefficients that vary over the plane, so that sharpening changes them.
+        let alpha: Vec<f32> = (0..ib.basis.len() * LINK_DIM)
+            .map(|k| {
+                let p = ib.basis.positions[k / LINK_DIM];
+                1.0 + p[0] * p[0] + 3.0 * p[1] + (k % LINK_DIM) as f32
+            })
+            .collect();
+        // The oracle flattens with the viewer's operator over every point.
+        let op = FlattenOp::build(&ib, &flat, None).unwrap();
+        let mut plain = vec![0.0f32; op.points() * LINK_DIM];
+        op.apply(&alpha, LINK_DIM, &mut plain, &mut FlattenScratch::default());
+        let scale = plain.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        let light = Light::point(glam::Vec3::Y, [1.0; 3]).unwrap();
+        let mut images = Vec::new();
+        for steps in [None, Some(1), Some(3)] {
+            let sharpen = steps.map(|k| {
+                let mut op = SharpenOp::build(&flat).unwrap();
+                op.set_steps(k).unwrap();
+                op
+            });
+            let mut want = plain.clone();
+            if let Some(op) = &sharpen {
+                op.apply(&mut want, LINK_DIM, &mut SharpenScratch::default());
+            }
+            let mut inner = Inner {
+                flat: flat.clone(),
+                sharpen,
+                frame: Frame::default(),
+            };
+            let mut oracle = OracleRelighter::new(&ib, &mut inner, alpha.clone()).unwrap();
+            let got = oracle.relight(&light).flat.clone();
+            assert_eq!(got, want, "{steps:?}");
+            images.push(got);
+        }
+        // Each choice gives a different image: the steps are followed, not a fixed number.
+        let differ =
+            |a: &[f32], b: &[f32]| a.iter().zip(b).any(|(x, y)| (x - y).abs() > 1e-3 * scale);
+        assert!(differ(&images[0], &images[1]) && differ(&images[1], &images[2]));
+    }
 
     /// Three levels of 2, 3 and 4 points.
     const LEVEL_OFFSETS: [u32; 4] = [0, 2, 5, 9];

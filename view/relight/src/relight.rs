@@ -68,8 +68,9 @@ pub trait Relight {
         None
     }
 
-    /// The sharpening step applied after the flattening operator (`c' = 2 c - W c`), for a
-    /// renderer that flattens on the GPU; `None` when the flat coefficients are not sharpened.
+    /// The sharpening applied after the flattening operator (`SharpenOp::steps` steps of
+    /// `c_{k+1} = c_k + c_0 - W c_k`), for a renderer that flattens on the GPU; `None` when
+    /// the flat coefficients are not sharpened.
     fn sharpen_operator(&self) -> Option<&SharpenOp> {
         None
     }

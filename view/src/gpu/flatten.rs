@@ -217,7 +217,8 @@ impl GpuFlatten {
                     floats,
                     wgpu::BufferUsages::empty(),
                 );
-                let steps = sharpen.steps().max(1);
+                // At least one step (`SharpenOp::set_steps` refuses zero).
+                let steps = sharpen.steps();
                 let between: Vec<wgpu::Buffer> = (0..(steps - 1).min(2))
                     .map(|_| {
                         float_buffer(
