@@ -97,7 +97,7 @@ pub fn level0_bounces(
                 trace_receiver(ib, &cells, t, caster, i, settings, eps, pw);
                 scratch.clear();
                 apply(t, pw, scratch);
-                scratch.touched.sort_unstable();
+                scratch.sort_touched();
                 scratch
                     .touched
                     .iter()

@@ -453,8 +453,8 @@ fn process(
         });
     }
     // Keep rules of Fig. 5, in ascending sender order (canonical output).
-    let mut touched = std::mem::take(&mut scratch.touched);
-    touched.sort_unstable();
+    scratch.sort_touched();
+    let touched = std::mem::take(&mut scratch.touched);
     let eps = settings.epsilon;
     let mut links = Vec::new();
     let mut refine = false;
