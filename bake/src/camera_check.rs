@@ -106,33 +106,9 @@ pub fn frame_coefficients(
     let b = &ib.basis;
     let n0 = b.level_range(0).len();
     let mut i = vec![0.0f32; b.len() * LINK_DIM];
-    let columns = |f: &mut dyn FnMut(usize, usize, [f32; LINK_DIM])| {
-        for (slot, &s) in links.sender_ids.iter().enumerate() {
-            let (a, z) = (
-                links.offsets[slot] as usize,
-                links.offsets[slot + 1] as usize,
-            );
-            for k in a..z {
-                f(
-                    s as usize,
-                    links.receiver_ids[k] as usize,
-                    links.value(k, slot),
-                );
-            }
-        }
-    };
-    columns(&mut |s, r, v| {
-        if let (Some(es), Some(out)) = (
-            e.get(3 * s..3 * s + 3),
-            i.get_mut(r * LINK_DIM..(r + 1) * LINK_DIM),
-        ) {
-            for k in 0..LINK_DIM {
-                out[k] += es[k / 3] * v[k];
-            }
-        }
-    });
     let senders = b.level_offsets[sender_levels.min(b.levels())] as usize;
     assert_eq!(e.len(), 3 * senders, "one RGB emission per sender point");
+    add_product(links, e, 0, &mut i);
     if fine {
         let samples: Vec<f32> = (0..senders)
             .into_par_iter()
@@ -150,18 +126,31 @@ pub fn frame_coefficients(
             })
             .collect();
         let (y, _) = pull_push_levels(ib, &samples, 3, sender_levels);
-        columns(&mut |s, r, v| {
-            if r >= n0 && r < b.len() {
-                if let Some(ys) = y.get(3 * s..3 * s + 3) {
-                    let out = &mut i[r * LINK_DIM..(r + 1) * LINK_DIM];
-                    for k in 0..LINK_DIM {
-                        out[k] += ys[k / 3] * v[k];
-                    }
-                }
-            }
-        });
+        add_product(links, &y, n0, &mut i);
     }
     i
+}
+
+/// `i_r += sum_s S_rs em_s` over the stored links of the receivers `r >= from` (`em`: RGB per
+/// sender; senders it does not cover add nothing).
+fn add_product(links: &Links, em: &[f32], from: usize, i: &mut [f32]) {
+    for (slot, &s) in links.sender_ids.iter().enumerate() {
+        let Some(es) = em.get(3 * s as usize..3 * s as usize + 3) else {
+            continue;
+        };
+        for k in links.offsets[slot] as usize..links.offsets[slot + 1] as usize {
+            let r = links.receiver_ids[k] as usize;
+            if r < from {
+                continue;
+            }
+            if let Some(out) = i.get_mut(r * LINK_DIM..(r + 1) * LINK_DIM) {
+                let v = links.value(k, slot);
+                for d in 0..LINK_DIM {
+                    out[d] += es[d / 3] * v[d];
+                }
+            }
+        }
+    }
 }
 
 /// The check at `camera` under `light` of `t` (every receiver's row of T, with the

@@ -33,6 +33,7 @@
 //! The operators are built once, in [`CpuRelighter::new`] (timed in [`LoadStats`]). When the
 //! light has not moved, nothing is recomputed.
 
+use std::sync::OnceLock;
 use std::time::Instant;
 
 use glam::Vec3;
@@ -82,10 +83,6 @@ pub struct LoadStats {
     pub pull_push_bytes: usize,
     /// Heap bytes of the receiver-major decoded links.
     pub links_bytes: usize,
-    /// Links of the finer receivers to level-0 senders ([`FineBounceOp`]), and their heap
-    /// bytes.
-    pub fine_bounce_links: usize,
-    pub fine_bounce_bytes: usize,
     /// Entries of the bounce-light feedback's reconstruction at the sender points, and their
     /// heap bytes ([`BounceFeedbackOp`]; it applies the level-0 rows of the links above).
     pub feedback_entries: usize,
@@ -128,7 +125,8 @@ pub struct CpuRelighter<'a> {
     sample_used: Vec<bool>,
     support: SupportAverage<'a>,
     receiver_links: ReceiverLinks,
-    fine_bounce: FineBounceOp,
+    /// Built on first use: only the level-0 emission and the bounce-light feedback need it.
+    fine_bounce: OnceLock<FineBounceOp>,
     feedback: BounceFeedbackOp,
     /// The flat basis the frames' flat coefficients belong to.
     flat: FlatBasis,
@@ -217,7 +215,7 @@ impl<'a> CpuRelighter<'a> {
         let sender_levels = sender_levels.min(ib.levels());
         let flat_stored = stored.is_some();
         let (
-            ((pull_push, feedback), (receiver_links, fine_bounce)),
+            ((pull_push, feedback), receiver_links),
             (flat, (flatten_op, sharpen_op), flatten_build_ms),
         ) = rayon::join(
             || {
@@ -228,12 +226,7 @@ impl<'a> CpuRelighter<'a> {
                             || BounceFeedbackOp::build(ib, links, sender_levels),
                         )
                     },
-                    || {
-                        rayon::join(
-                            || ReceiverLinks::build(links),
-                            || FineBounceOp::build(ib, links),
-                        )
-                    },
+                    || ReceiverLinks::build(links),
                 )
             },
             || {
@@ -269,8 +262,6 @@ impl<'a> CpuRelighter<'a> {
             sharpen_bytes: sharpen_op.as_ref().map_or(0, SharpenOp::bytes),
             pull_push_bytes: pull_push.bytes(),
             links_bytes: receiver_links.bytes(),
-            fine_bounce_links: fine_bounce.link_count(),
-            fine_bounce_bytes: fine_bounce.bytes(),
             feedback_entries: feedback.entries(),
             feedback_bytes: feedback.bytes(),
             direct_points: sample_used.iter().filter(|u| **u).count(),
@@ -286,7 +277,7 @@ impl<'a> CpuRelighter<'a> {
             sample_used,
             support: SupportAverage::new(ib, pull_push_points(ib, sender_levels)),
             receiver_links,
-            fine_bounce,
+            fine_bounce: OnceLock::new(),
             feedback,
             flat,
             flatten_op,
@@ -327,6 +318,12 @@ impl<'a> CpuRelighter<'a> {
         let traced = traced.is_some_and(|b| b.level0_paths > 0);
         let steps = feedback_steps.unwrap_or(if traced { 0 } else { DEFAULT_FEEDBACK_STEPS });
         self.bounce_feedback = if self.fine_bounces { steps } else { 0 };
+    }
+
+    /// The finer receivers' links to level-0 senders, built the first time they are needed.
+    fn fine_bounce_op(&self) -> &FineBounceOp {
+        self.fine_bounce
+            .get_or_init(|| FineBounceOp::build(self.ib, self.links))
     }
 
     /// Forgets the lagged feedback's correction: the next frame takes the exact steps.
@@ -591,14 +588,14 @@ impl Relight for CpuRelighter<'_> {
                 self.receiver_links
                     .apply_add_from(&y, self.skip_fraction * max_y, m, &mut i);
             } else {
-                self.fine_bounce.apply(&mut i);
+                self.fine_bounce_op().apply(&mut i);
             }
         }
         times.transport_ms = t.elapsed().as_secs_f64() * 1e3;
 
         let t = Instant::now();
         if feedback && prev.is_none() {
-            let fine = self.fine_bounces.then_some(&self.fine_bounce);
+            let fine = self.fine_bounces.then(|| self.fine_bounce_op());
             self.feedback.apply(
                 &self.receiver_links,
                 &self.pull_push,
