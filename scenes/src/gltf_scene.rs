@@ -743,6 +743,6 @@ mod tests {
             height: 1,
         };
         let t = texture_from_gltf_image(&data).expect("converts");
-        assert_eq!(t.texels, vec![[1.0, 0.0, 0.0]]);
+        assert_eq!(t.texels().collect::<Vec<_>>(), vec![[1.0, 0.0, 0.0]]);
     }
 }

@@ -90,7 +90,7 @@ impl SceneOptions {
 pub fn largest_albedo(mesh: &Mesh) -> f32 {
     let texel_max = |t: u32| {
         mesh.textures.get(t as usize).map_or(1.0, |tex| {
-            tex.texels.iter().flatten().fold(0.0f32, |m, &v| m.max(v))
+            tex.texels().flatten().fold(0.0f32, |m, v| m.max(v))
         })
     };
     mesh.materials
@@ -161,11 +161,10 @@ mod tests {
             }
         }
         // A texture's largest texel counts: a material at 0.5 over texels up to 0.8 is 0.4.
-        mesh.textures.push(crate::texture::Texture {
-            width: 1,
-            height: 2,
-            texels: vec![[0.8, 0.1, 0.1], [0.2, 0.2, 0.2]],
-        });
+        mesh.textures.push(
+            crate::texture::Texture::from_linear(1, 2, vec![[0.8, 0.1, 0.1], [0.2, 0.2, 0.2]])
+                .expect("valid 1x2 texture"),
+        );
         mesh.materials = vec![crate::mesh::Material {
             name: "t".into(),
             albedo: [0.5, 0.5, 0.5],

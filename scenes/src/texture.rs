@@ -5,20 +5,39 @@
 //! of the image (the first row stored in the file), `v` grows downwards. OBJ's convention is
 //! the opposite (`v = 0` at the bottom), so the OBJ loader stores `(u, 1 - v)` in
 //! [`crate::Mesh::uvs`]; the glTF loader stores UVs unchanged. UVs outside `[0, 1]` tile.
+//!
+//! # Storage
+//! 8-bit sRGB images keep their bytes (3 per texel) and are decoded through a 256-entry table
+//! when read: the same linear values as decoding them on load, from a quarter of the memory
+//! of `[f32; 3]` texels. That matters to the bake, whose gather samples the textures at
+//! every ray hit, scattered over all of a scene's images (Sponza's are hundreds of megabytes
+//! as floats and miss the caches). Other inputs (16-bit, float, already linear) keep `f32`.
 
 use std::path::Path;
+use std::sync::LazyLock;
 
 use glam::Vec2;
 
 use crate::error::SceneError;
 
-/// An RGB texture in linear colour space (8-bit sRGB input is decoded on load).
+/// An RGB texture in linear colour space (8-bit sRGB input is decoded when read, see the
+/// module docs). Built only through its constructors, so the texel count always matches
+/// the size.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Texture {
-    pub width: u32,
-    pub height: u32,
+    width: u32,
+    height: u32,
     /// Row-major texels, first row at the top of the image (`v = 0`).
-    pub texels: Vec<[f32; 3]>,
+    texels: Texels,
+}
+
+/// How a texture's texels are stored.
+#[derive(Clone, Debug, PartialEq)]
+enum Texels {
+    /// 8-bit sRGB-encoded, decoded by [`SRGB8`].
+    Srgb8(Vec<[u8; 3]>),
+    /// Linear.
+    Linear(Vec<[f32; 3]>),
 }
 
 /// sRGB transfer function, decoded: encoded value in `[0, 1]` to linear.
@@ -30,14 +49,14 @@ pub fn srgb_to_linear(c: f32) -> f32 {
     }
 }
 
-/// Lookup table for 8-bit sRGB values.
-fn srgb8_table() -> [f32; 256] {
+/// Linear values of the 256 8-bit sRGB codes.
+static SRGB8: LazyLock<[f32; 256]> = LazyLock::new(|| {
     let mut table = [0.0; 256];
     for (i, t) in table.iter_mut().enumerate() {
         *t = srgb_to_linear(i as f32 / 255.0);
     }
     table
-}
+});
 
 impl Texture {
     /// Builds a texture from already-linear texels; `None` if the size does not match or is 0.
@@ -49,7 +68,7 @@ impl Texture {
         Some(Texture {
             width,
             height,
-            texels,
+            texels: Texels::Linear(texels),
         })
     }
 
@@ -71,27 +90,49 @@ impl Texture {
         if n == 0 || !(1..=4).contains(&channels) || pixels.len() != n.checked_mul(channels)? {
             return None;
         }
-        let table = srgb8_table();
         let texels = pixels
             .chunks_exact(channels)
             .map(|p| {
                 if channels < 3 {
-                    let g = table[p[0] as usize];
-                    [g, g, g]
+                    [p[0]; 3]
                 } else {
-                    [
-                        table[p[0] as usize],
-                        table[p[1] as usize],
-                        table[p[2] as usize],
-                    ]
+                    [p[0], p[1], p[2]]
                 }
             })
             .collect();
         Some(Texture {
             width,
             height,
-            texels,
+            texels: Texels::Srgb8(texels),
         })
+    }
+
+    /// Width in texels (at least 1).
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    /// Height in texels (at least 1).
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    /// Texel `i` (row-major from the top row) in linear RGB; panics past the last texel.
+    #[inline]
+    pub fn texel(&self, i: usize) -> [f32; 3] {
+        match &self.texels {
+            Texels::Srgb8(t) => {
+                let table = &*SRGB8;
+                t[i].map(|c| table[c as usize])
+            }
+            Texels::Linear(t) => t[i],
+        }
+    }
+
+    /// The linear RGB texels, row-major from the top row.
+    pub fn texels(&self) -> impl ExactSizeIterator<Item = [f32; 3]> + '_ {
+        let n = (self.width as usize) * (self.height as usize);
+        (0..n).map(move |i| self.texel(i))
     }
 
     /// Loads a PNG or JPEG file (sRGB-encoded) and converts it to linear RGB.
@@ -130,9 +171,6 @@ impl Texture {
     /// the texture repeats outside `[0, 1]`. Non-finite UVs sample the corner texel.
     pub fn sample(&self, uv: Vec2) -> [f32; 3] {
         let (w, h) = (self.width as usize, self.height as usize);
-        if w == 0 || h == 0 || self.texels.len() != w * h {
-            return [1.0; 3];
-        }
         let wrap01 = |x: f32| if x.is_finite() { x - x.floor() } else { 0.0 };
         // Texel centres sit at (i + 0.5) / size.
         let x = wrap01(uv.x) * w as f32 - 0.5;
@@ -142,8 +180,15 @@ impl Texture {
         let wrap = |i: f32, n: usize| (i as i64).rem_euclid(n as i64) as usize;
         let (i0, i1) = (wrap(x0, w), wrap(x0 + 1.0, w));
         let (j0, j1) = (wrap(y0, h), wrap(y0 + 1.0, h));
-        let t = |i: usize, j: usize| self.texels[j * w + i];
-        let (a, b, c, d) = (t(i0, j0), t(i1, j0), t(i0, j1), t(i1, j1));
+        let [a, b, c, d] = [(i0, j0), (i1, j0), (i0, j1), (i1, j1)].map(|(i, j)| j * w + i);
+        let (a, b, c, d) = match &self.texels {
+            Texels::Srgb8(t) => {
+                let table = &*SRGB8;
+                let lin = |p: [u8; 3]| p.map(|c| table[c as usize]);
+                (lin(t[a]), lin(t[b]), lin(t[c]), lin(t[d]))
+            }
+            Texels::Linear(t) => (t[a], t[b], t[c], t[d]),
+        };
         let mut out = [0.0; 3];
         for k in 0..3 {
             let top = a[k] + (b[k] - a[k]) * fx;
@@ -206,8 +251,8 @@ mod tests {
         img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
             .expect("encode png");
         let t = Texture::decode(&png, Path::new("x.png")).expect("decodes");
-        assert_eq!((t.width, t.height), (2, 1));
-        assert!((t.texels[1][0] - 0.2158).abs() < 1e-3);
+        assert_eq!((t.width(), t.height()), (2, 1));
+        assert!((t.texel(1)[0] - 0.2158).abs() < 1e-3);
         let err = Texture::decode(b"not an image", Path::new("broken.png")).unwrap_err();
         assert!(err.to_string().contains("broken.png"), "{err}");
     }
