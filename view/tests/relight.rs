@@ -563,3 +563,80 @@ fn lagged_bounce_feedback_is_one_pass_with_last_frames_correction_and_tracks_the
     let a = lagged.relight(&light_at(20)).i.clone();
     assert_eq!(bits(&a), bits(&exact.relight(&light_at(20)).i));
 }
+
+/// With the lag, a file whose fine bounces re-emit from every sender point and take no
+/// feedback step (traced level-0 rows) computes `S e` and the finer rows' product of the last
+/// frame's bounce emission in one pass: bit for bit `S e` plus `S_fine y` of the previous
+/// frame's `S e`. A moving light's frames stay near the exact ones, a light that stops gets
+/// the exact frame on its next call (then reused), and a reset gives the exact frame.
+#[test]
+fn lagged_fine_bounces_share_the_pass_of_s_e_and_settle_to_the_exact_frame() {
+    use mlt_relight::{BounceFeedbackOp, PullPushOp, ReceiverLinks};
+    let (_d, file, ib, sender_levels, caster) = small_cornell("lagged_fine", 64);
+    let lb = file.links_bytes().unwrap().unwrap();
+    let links = file.access_links(&lb).unwrap();
+    let light_at = |k: usize| {
+        let p = Vec3::new(0.25 + 0.005 * k as f32, 0.5, 0.28);
+        Light::point(p, [0.3, 0.25, 0.2]).unwrap()
+    };
+    let relighter = |lagged: bool| {
+        let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, 4)
+            .expect("relighting operators");
+        r.fine_bounces = true;
+        assert_eq!(r.fine_emission, FineEmission::Senders);
+        assert_eq!(r.bounce_feedback, 0);
+        r.lagged_feedback = lagged;
+        r
+    };
+    let (mut lagged, mut exact) = (relighter(true), relighter(false));
+    let first = lagged.relight(&light_at(0)).clone();
+    assert_eq!(bits(&first.i), bits(&exact.relight(&light_at(0)).i));
+
+    // The next frame: `S e` with the rows of the finer receivers adding `S y`, `y` the
+    // bounce emission of the first frame's `S e`; the same bits for 1 and 2 threads.
+    let s = ReceiverLinks::build(links);
+    let pp = PullPushOp::build(&ib, sender_levels);
+    let feedback = BounceFeedbackOp::build(&ib, links, sender_levels);
+    let n = ib.basis.len() * LINK_DIM;
+    let s_e = |e: &[f32]| {
+        let max_e = e.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        let mut i = vec![0.0f32; n];
+        s.apply(e, 1e-4 * max_e, &mut i);
+        i
+    };
+    let y0 = feedback.emission(&pp, &s_e(&first.e));
+    let second = lagged.relight(&light_at(1)).clone();
+    let mut want = s_e(&second.e);
+    let max_y = y0.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    let n0 = ib.basis.level_range(0).len();
+    s.apply_add_from(&y0, 1e-4 * max_y, n0, &mut want);
+    assert_eq!(bits(&second.i), bits(&want));
+    let one_thread = with_threads(1, || {
+        let mut r = relighter(true);
+        r.relight(&light_at(0));
+        r.relight(&light_at(1)).i.clone()
+    });
+    assert_eq!(bits(&one_thread), bits(&second.i));
+
+    let rel = |a: &[f32], b: &[f32]| {
+        let num: f64 = a.iter().zip(b).map(|(x, y)| f64::from(x - y).powi(2)).sum();
+        let den: f64 = b.iter().map(|y| f64::from(*y).powi(2)).sum();
+        (num / den).sqrt()
+    };
+    let mut worst = 0.0f64;
+    for k in 2..8 {
+        let a = lagged.relight(&light_at(k)).i.clone();
+        let b = exact.relight(&light_at(k)).i.clone();
+        worst = worst.max(rel(&a, &b));
+    }
+    assert!(worst < 0.01, "lagged frames {worst} from the exact ones");
+    assert!(worst > 0.0);
+    // The light stops: its next frame is the exact one, and is then reused.
+    let settled = lagged.relight(&light_at(7)).i.clone();
+    assert_eq!(bits(&settled), bits(&exact.relight(&light_at(7)).i));
+    assert!(lagged.relight(&light_at(7)).reused);
+    lagged.relight(&light_at(9));
+    lagged.reset_lag();
+    let a = lagged.relight(&light_at(20)).i.clone();
+    assert_eq!(bits(&a), bits(&exact.relight(&light_at(20)).i));
+}

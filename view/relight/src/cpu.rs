@@ -168,18 +168,26 @@ pub struct CpuRelighter<'a> {
     /// it out; set it (1 is enough) for a file whose `S` chained its bounces through the
     /// coarsest receivers ([`FineBounceOp::applies_to`]).
     pub bounce_feedback: u32,
-    /// Lagged bounce-light feedback, for interactive use: each frame's level-0 rows of `S`
-    /// take the correction computed from the previous frame's indirect light, in the same
-    /// pass as `S e` (its fine bounces then come with the frame's own), and the frame's
-    /// correction is kept for the next. A moving light's correction is one frame late; when
-    /// the light stops, the next call for it relights once more with its own correction (a
-    /// further step of the fixed point, nearer to it than the exact single step) and later
-    /// calls reuse that frame. The first frame, and the first after
-    /// [`CpuRelighter::reset_lag`], takes the exact steps of `bounce_feedback`. Off by
-    /// default; only with `bounce_feedback` above 0.
+    /// Lagged bounce light, for interactive use: the emission that step 3 computes from the
+    /// frame's own `S e` is taken from the previous frame instead, in the same pass over the
+    /// links as `S e`, and the frame's is kept for the next. With `bounce_feedback` above 0
+    /// that is the feedback's correction, which the level-0 rows of `S` take (the fine
+    /// bounces then come with the frame's own); without it, when the fine bounces re-emit
+    /// the bounce light from every sender point ([`FineEmission::Senders`], files whose
+    /// level-0 rows were traced as paths), that emission `y`, which the finer rows take:
+    /// `S e` and `S_fine y` share one read of the links instead of two. A moving light's
+    /// lagged part is one frame late; when the light stops, the next call for it relights
+    /// once more with its own (with the feedback a further step of the fixed point, nearer to
+    /// it than the exact single step; with the fine bounces the exact frame) and later calls
+    /// reuse that frame. The first frame, and the first after [`CpuRelighter::reset_lag`],
+    /// is computed exactly. Off by default.
     pub lagged_feedback: bool,
     /// The previous frame's feedback correction (lagged feedback).
     feedback_prev: Option<Vec<f32>>,
+    /// The previous frame's fine-bounce emission `y` (lagged fine bounces).
+    fine_prev: Option<Vec<f32>>,
+    /// `S e` of the frame (lagged fine bounces; reused between frames).
+    se: Vec<f32>,
     /// False after a frame that took a correction computed under another light: the same
     /// light again is then relit once more (with its own correction) instead of reused.
     lag_settled: bool,
@@ -295,6 +303,8 @@ impl<'a> CpuRelighter<'a> {
             bounce_feedback: 0,
             lagged_feedback: false,
             feedback_prev: None,
+            fine_prev: None,
+            se: Vec::new(),
             lag_settled: true,
             frame: Frame::default(),
             last: None,
@@ -326,9 +336,10 @@ impl<'a> CpuRelighter<'a> {
             .get_or_init(|| FineBounceOp::build(self.ib, self.links))
     }
 
-    /// Forgets the lagged feedback's correction: the next frame takes the exact steps.
+    /// Forgets the lagged bounce light: the next frame is computed exactly.
     pub fn reset_lag(&mut self) {
         self.feedback_prev = None;
+        self.fine_prev = None;
     }
 
     /// The precomputed flattening operator (absent only when too large for 32-bit offsets).
@@ -560,14 +571,40 @@ impl Relight for CpuRelighter<'_> {
         let feedback = self.bounce_feedback > 0 && receiver_major;
         let lag = feedback && self.lagged_feedback;
         let prev = if lag { self.feedback_prev.take() } else { None };
-        // A correction from this same light's last frame is the fixed point's next step.
-        self.lag_settled = prev.is_none() || same_light;
+        // The fine bounces from every sender point, through the finer rows (T's: links to
+        // every sender level), from the bounce light `y` at every sender point pull-pushed
+        // onto the sender levels: the frame's own, or with the lag the last frame's.
+        let fine_senders = self.fine_bounces
+            && self.fine_emission == FineEmission::Senders
+            && self.bounce_feedback == 0
+            && receiver_major;
+        let fine_lag = fine_senders && self.lagged_feedback;
+        let fine_prev = if fine_lag {
+            self.fine_prev.take()
+        } else {
+            None
+        };
+        // A lagged part from this same light's last frame is the frame's own.
+        self.lag_settled = (prev.is_none() && fine_prev.is_none()) || same_light;
+        let m = self.ib.basis.level_range(0).len();
         let used = if let Some(d) = &prev {
             // The level-0 rows take last frame's correction with the emission.
             let e_first: Vec<f32> = e.iter().zip(d).map(|(a, b)| a + b).collect();
-            let m = self.ib.basis.level_range(0).len();
             self.receiver_links
                 .apply_split(&e, &e_first, m, threshold, &mut i)
+        } else if let Some(y) = &fine_prev {
+            // `S e` (for the next frame's `y`) and `S e + S_fine y` in one pass.
+            let max_y = y.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            self.se.resize(n, 0.0);
+            self.receiver_links.apply_with_added_from(
+                &e,
+                threshold,
+                y,
+                self.skip_fraction * max_y,
+                m,
+                &mut self.se,
+                &mut i,
+            )
         } else if receiver_major {
             self.receiver_links.apply(&e, threshold, &mut i)
         } else {
@@ -575,21 +612,18 @@ impl Relight for CpuRelighter<'_> {
             i.fill(0.0);
             self.links.apply(&e, threshold, &mut i)
         };
-        if self.fine_bounces {
-            if self.fine_emission == FineEmission::Senders
-                && self.bounce_feedback == 0
-                && receiver_major
-            {
-                // The bounce light at every sender point, pull-pushed onto the sender levels,
-                // through the finer receivers' rows (T's: links to every sender level).
-                let y = self.feedback.emission(&self.pull_push, &i);
-                let max_y = y.iter().fold(0.0f32, |m, v| m.max(v.abs()));
-                let m = self.ib.basis.level_range(0).len();
-                self.receiver_links
-                    .apply_add_from(&y, self.skip_fraction * max_y, m, &mut i);
-            } else {
-                self.fine_bounce_op().apply(&mut i);
+        if fine_prev.is_some() {
+            self.fine_prev = Some(self.feedback.emission(&self.pull_push, &self.se));
+        } else if fine_senders {
+            let y = self.feedback.emission(&self.pull_push, &i);
+            let max_y = y.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            self.receiver_links
+                .apply_add_from(&y, self.skip_fraction * max_y, m, &mut i);
+            if fine_lag {
+                self.fine_prev = Some(y);
             }
+        } else if self.fine_bounces {
+            self.fine_bounce_op().apply(&mut i);
         }
         times.transport_ms = t.elapsed().as_secs_f64() * 1e3;
 

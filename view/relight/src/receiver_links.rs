@@ -184,6 +184,97 @@ impl ReceiverLinks {
         self.apply_impl::<true>(e, None, m, threshold, self.receivers as usize, i)
     }
 
+    /// `S e` and `S e + S y` in one pass over the links, where `y` reaches the rows of
+    /// receivers `m` and above only: `se` gets [`ReceiverLinks::apply`]'s bits on `e`, and `i`
+    /// those of `apply` on `e` followed by [`ReceiverLinks::apply_add_from`] on `y` (each
+    /// row's two sums formed apart, then added). The links are read once for both, so this
+    /// costs little more than `S e` alone (the product is bound by reading the links). Senders
+    /// at most `threshold` (of `e`) or `threshold_y` (of `y`) in every channel are skipped.
+    /// Returns the number of senders of `e` used. Panics unless `se` and `i` hold 9 floats per
+    /// receiver.
+    #[allow(clippy::too_many_arguments)]
+    pub fn apply_with_added_from(
+        &self,
+        e: &[f32],
+        threshold: f32,
+        y: &[f32],
+        threshold_y: f32,
+        m: usize,
+        se: &mut [f32],
+        i: &mut [f32],
+    ) -> usize {
+        use rayon::prelude::*;
+        let n = self.receivers as usize;
+        assert!(se.len() == n * LINK_DIM && i.len() == n * LINK_DIM);
+        let mut used = 0;
+        let w = self.sender_weights(e, threshold, &mut used);
+        let w_y = self.sender_weights(y, threshold_y, &mut 0);
+        let rows = self.receiver_ids.len();
+        let parts = self.chunk_parts(rows, n, se).into_iter();
+        let parts_i = self.chunk_parts(rows, n, i).into_iter();
+        #[cfg(target_arch = "x86_64")]
+        let f16c = std::arch::is_x86_feature_detected!("avx2")
+            && std::arch::is_x86_feature_detected!("f16c");
+        parts
+            .zip(parts_i)
+            .collect::<Vec<_>>()
+            .into_par_iter()
+            .for_each(|((c, first, out_se), (_, _, out_i))| {
+                #[cfg(target_arch = "x86_64")]
+                if f16c {
+                    // SAFETY: this CPU has AVX2 and F16C (checked above), the only requirement
+                    // for calling a function compiled with them.
+                    unsafe { self.dual_chunk_f16c((&w, &w_y, m), c, rows, first, out_se, out_i) };
+                    return;
+                }
+                self.dual_chunk::<false>((&w, &w_y, m), c, rows, first, out_se, out_i);
+            });
+        used
+    }
+
+    /// Splits `buf` (9 floats per point of `0..n`) into the ranges of the parallel tasks over
+    /// the first `rows` linked receivers: chunk `c` owns the points from its first receiver to
+    /// the next chunk's first (the first chunk from point 0, the last to `n`), as `(c, first
+    /// point, values)`. The points past the last chunk's range are zeroed (none are linked).
+    fn chunk_parts<'b>(
+        &self,
+        rows: usize,
+        n: usize,
+        buf: &'b mut [f32],
+    ) -> Vec<(usize, usize, &'b mut [f32])> {
+        let (parts, rest) = self.split_chunks(rows, n, buf);
+        rest.fill(0.0);
+        parts
+    }
+
+    /// [`ReceiverLinks::chunk_parts`] without touching the points past the chunks, which are
+    /// returned.
+    #[allow(clippy::type_complexity)]
+    fn split_chunks<'b>(
+        &self,
+        rows: usize,
+        n: usize,
+        buf: &'b mut [f32],
+    ) -> (Vec<(usize, usize, &'b mut [f32])>, &'b mut [f32]) {
+        let receivers = &self.receiver_ids[..rows];
+        let chunks = receivers.len().div_ceil(RECEIVER_CHUNK);
+        let mut parts = Vec::with_capacity(chunks.max(1));
+        let mut rest = buf;
+        let mut at = 0usize;
+        for c in 0..chunks {
+            let end = if c + 1 < chunks {
+                receivers[(c + 1) * RECEIVER_CHUNK] as usize
+            } else {
+                n
+            };
+            let (head, tail) = std::mem::take(&mut rest).split_at_mut((end - at) * LINK_DIM);
+            parts.push((c, at, head));
+            rest = tail;
+            at = end;
+        }
+        (parts, rest)
+    }
+
     /// `i (+)= S e` over the rows of the receivers `skip..n`; with `first = (e_first, m)` the
     /// rows of receivers `0..m` use `e_first` instead.
     fn apply_impl<const ADD: bool>(
@@ -207,22 +298,7 @@ impl ReceiverLinks {
         // Chunks of receivers own disjoint, consecutive ranges of `i` (receivers ascend): from
         // their first receiver to the next chunk's first, the first chunk from point 0.
         let rows = self.receiver_ids.partition_point(|&r| (r as usize) < n);
-        let receivers = &self.receiver_ids[..rows];
-        let chunks = receivers.len().div_ceil(RECEIVER_CHUNK);
-        let mut parts = Vec::with_capacity(chunks.max(1));
-        let mut rest = i;
-        let mut at = 0usize;
-        for c in 0..chunks {
-            let end = if c + 1 < chunks {
-                receivers[(c + 1) * RECEIVER_CHUNK] as usize
-            } else {
-                n
-            };
-            let (head, tail) = std::mem::take(&mut rest).split_at_mut((end - at) * LINK_DIM);
-            parts.push((c, at, head));
-            rest = tail;
-            at = end;
-        }
+        let (parts, rest) = self.split_chunks(rows, n, i);
         if !ADD {
             rest.fill(0.0);
         }
@@ -280,8 +356,8 @@ impl ReceiverLinks {
     /// The receivers of chunk `c` (of the first `rows` linked receivers) into `out` (added
     /// to it with `ADD`), which starts at point `first`; receivers below `w.2` use the
     /// weights `w.1`, the others `w.0`; receivers below `w.3` are skipped.
-    /// With `F16C` the values are converted by [`decode_f16c`], which the caller must have
-    /// checked the CPU for (only [`ReceiverLinks::chunk_f16c`] sets it).
+    /// With `F16C` each row is summed by [`row_sum_f16c`], which the caller must have checked
+    /// the CPU for (only [`ReceiverLinks::chunk_f16c`] sets it).
     #[inline(always)]
     fn chunk<const ADD: bool, const F16C: bool>(
         &self,
@@ -304,23 +380,7 @@ impl ReceiverLinks {
             let w = if point < m { w_first } else { w_rest };
             let r = point - first;
             let (a, b) = (self.offsets[q] as usize, self.offsets[q + 1] as usize);
-            let mut acc = [0.0f32; LINK_DIM];
-            for (&slot, v) in self.slots[a..b].iter().zip(&self.values[a..b]) {
-                let ws = &w[slot as usize];
-                #[cfg(target_arch = "x86_64")]
-                let v = if F16C {
-                    // SAFETY: `F16C` is set only by `chunk_f16c`, which runs only on CPUs with
-                    // F16C (checked in `apply_impl`).
-                    unsafe { decode_f16c(v) }
-                } else {
-                    decode(v)
-                };
-                #[cfg(not(target_arch = "x86_64"))]
-                let v = decode(v);
-                for d in 0..LINK_DIM {
-                    acc[d] += ws[d] * v[d];
-                }
-            }
+            let acc = row_sum::<F16C>(&self.slots[a..b], &self.values[a..b], w);
             let o = &mut out[r * LINK_DIM..(r + 1) * LINK_DIM];
             if ADD {
                 for d in 0..LINK_DIM {
@@ -331,30 +391,219 @@ impl ReceiverLinks {
             }
         }
     }
+
+    /// [`ReceiverLinks::dual_chunk`] compiled with AVX2 and F16C.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,f16c")]
+    fn dual_chunk_f16c(
+        &self,
+        w: DualWeights<'_>,
+        c: usize,
+        rows: usize,
+        first: usize,
+        out_se: &mut [f32],
+        out_i: &mut [f32],
+    ) {
+        self.dual_chunk::<true>(w, c, rows, first, out_se, out_i);
+    }
+
+    /// The receivers of chunk `c` for [`ReceiverLinks::apply_with_added_from`]: `out_se` gets
+    /// each row's sum over the weights `w.0`, `out_i` that sum plus, for receivers from `w.2`
+    /// on, the sum over the weights `w.1` of the same links (formed apart, then added). Both
+    /// start at point `first` and are overwritten. `F16C` as in [`ReceiverLinks::chunk`]
+    /// ([`row_sums_f16c`]).
+    #[inline(always)]
+    fn dual_chunk<const F16C: bool>(
+        &self,
+        (w, w_y, m): DualWeights<'_>,
+        c: usize,
+        rows: usize,
+        first: usize,
+        out_se: &mut [f32],
+        out_i: &mut [f32],
+    ) {
+        out_se.fill(0.0);
+        out_i.fill(0.0);
+        let qs = c * RECEIVER_CHUNK..((c + 1) * RECEIVER_CHUNK).min(rows);
+        for q in qs {
+            let point = self.receiver_ids[q] as usize;
+            let r = point - first;
+            let (a, b) = (self.offsets[q] as usize, self.offsets[q + 1] as usize);
+            let (slots, values) = (&self.slots[a..b], &self.values[a..b]);
+            let (acc, acc_y) = if point < m {
+                (row_sum::<F16C>(slots, values, w), [0.0; LINK_DIM])
+            } else {
+                row_sums::<F16C>(slots, values, w, w_y)
+            };
+            out_se[r * LINK_DIM..(r + 1) * LINK_DIM].copy_from_slice(&acc);
+            let o = &mut out_i[r * LINK_DIM..(r + 1) * LINK_DIM];
+            for d in 0..LINK_DIM {
+                o[d] = acc[d] + acc_y[d];
+            }
+        }
+    }
+}
+
+/// The weights of [`ReceiverLinks::dual_chunk`]: per sender slot those of `e`, those of `y`,
+/// and the first receiver `y` reaches. (Kept apart: the level-0 rows, most of the links in a
+/// closed room, read only the first, and twice the footprint would leave the cache.)
+type DualWeights<'a> = (&'a [[f32; LINK_DIM]], &'a [[f32; LINK_DIM]], usize);
+
+/// One row's sum `sum_k w[slot_k] * value_k`, element by element in link order, each term a
+/// product then a sum in `f32` (no fused multiply-add). With `F16C` (set only in code compiled
+/// for and run on CPUs with AVX2 and F16C) by [`row_sum_f16c`], else by the scalar loop: the
+/// same bits (the half floats' conversion is exact, and a vector lane's product and sum are
+/// the scalar's).
+#[inline(always)]
+fn row_sum<const F16C: bool>(
+    slots: &[u32],
+    values: &[[u16; LINK_DIM]],
+    w: &[[f32; LINK_DIM]],
+) -> [f32; LINK_DIM] {
+    #[cfg(target_arch = "x86_64")]
+    if F16C {
+        // SAFETY: `F16C` is set only by `chunk_f16c` and `dual_chunk_f16c`, which run only
+        // on CPUs with AVX2 and F16C (checked by their callers).
+        return unsafe { row_sum_f16c(slots, values, w) };
+    }
+    let mut acc = [0.0f32; LINK_DIM];
+    for (&slot, v) in slots.iter().zip(values) {
+        let (ws, v) = (&w[slot as usize], decode(v));
+        for d in 0..LINK_DIM {
+            acc[d] += ws[d] * v[d];
+        }
+    }
+    acc
+}
+
+/// [`row_sum`] of the same links over two weight vectors at once (one read of the links).
+#[inline(always)]
+fn row_sums<const F16C: bool>(
+    slots: &[u32],
+    values: &[[u16; LINK_DIM]],
+    w: &[[f32; LINK_DIM]],
+    w_y: &[[f32; LINK_DIM]],
+) -> ([f32; LINK_DIM], [f32; LINK_DIM]) {
+    #[cfg(target_arch = "x86_64")]
+    if F16C {
+        // SAFETY: as in `row_sum`.
+        return unsafe { row_sums_f16c(slots, values, w, w_y) };
+    }
+    let (mut acc, mut acc_y) = ([0.0f32; LINK_DIM], [0.0f32; LINK_DIM]);
+    for (&slot, v) in slots.iter().zip(values) {
+        let (ws, wy, v) = (&w[slot as usize], &w_y[slot as usize], decode(v));
+        for d in 0..LINK_DIM {
+            acc[d] += ws[d] * v[d];
+            acc_y[d] += wy[d] * v[d];
+        }
+    }
+    (acc, acc_y)
+}
+
+/// One link's values and weights as vectors: elements 0-7 and elements 5-8 of each (one
+/// instruction per load or conversion; [`unpack`] takes elements 5-8 from the second).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,f16c")]
+#[inline]
+fn lanes(
+    v: &[u16; LINK_DIM],
+    ws: &[f32; LINK_DIM],
+) -> (
+    std::arch::x86_64::__m256,
+    std::arch::x86_64::__m128,
+    std::arch::x86_64::__m256,
+    std::arch::x86_64::__m128,
+) {
+    use std::arch::x86_64::*;
+    // SAFETY: `v` holds 9 `u16` and `ws` 9 `f32`: the 16 bytes from `v[0]`, the 8 from
+    // `v[5]`, the 32 from `ws[0]` and the 16 from `ws[5]` are in bounds (unaligned loads).
+    unsafe {
+        let (p, q) = (v.as_ptr(), ws.as_ptr());
+        (
+            _mm256_cvtph_ps(_mm_loadu_si128(p.cast::<__m128i>())),
+            _mm_cvtph_ps(_mm_loadl_epi64(p.add(5).cast::<__m128i>())),
+            _mm256_loadu_ps(q),
+            _mm_loadu_ps(q.add(5)),
+        )
+    }
+}
+
+/// A row's two accumulators as nine floats: elements 0-4 from the first, 5-8 from the second.
+/// (Elements 5-7 are in both; taking them from the second keeps every lane of it in use, which
+/// keeps the compiler from narrowing it to the ninth element alone, inserted into the low lane
+/// of a register it picks: when that register holds an accumulator, each link's conversion
+/// waits for the previous link's sum, and the product takes twice as long.)
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,f16c")]
+#[inline]
+fn unpack(acc8: std::arch::x86_64::__m256, acc4: std::arch::x86_64::__m128) -> [f32; LINK_DIM] {
+    use std::arch::x86_64::*;
+    let mut out = [0.0f32; LINK_DIM];
+    // SAFETY: `out` holds 9 `f32`: the 32 bytes stored from its start and the 16 from its
+    // sixth element are in bounds; the second store follows the first.
+    unsafe {
+        _mm256_storeu_ps(out.as_mut_ptr(), acc8);
+        _mm_storeu_ps(out.as_mut_ptr().add(5), acc4);
+    }
+    out
+}
+
+/// [`row_sum`] with AVX2 and F16C: a link's values converted, multiplied and added eight (and
+/// four) at a time ([`lanes`]; separate products and sums, so each element's bits are the
+/// scalar loop's).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,f16c")]
+#[inline]
+fn row_sum_f16c(
+    slots: &[u32],
+    values: &[[u16; LINK_DIM]],
+    w: &[[f32; LINK_DIM]],
+) -> [f32; LINK_DIM] {
+    use std::arch::x86_64::*;
+    let (mut acc8, mut acc9) = (_mm256_setzero_ps(), _mm_setzero_ps());
+    for (&slot, v) in slots.iter().zip(values) {
+        let (v8, v9, w8, w9) = lanes(v, &w[slot as usize]);
+        acc8 = _mm256_add_ps(acc8, _mm256_mul_ps(w8, v8));
+        acc9 = _mm_add_ps(acc9, _mm_mul_ps(w9, v9));
+    }
+    unpack(acc8, acc9)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,f16c")]
+#[inline]
+fn row_sums_f16c(
+    slots: &[u32],
+    values: &[[u16; LINK_DIM]],
+    w: &[[f32; LINK_DIM]],
+    w_y: &[[f32; LINK_DIM]],
+) -> ([f32; LINK_DIM], [f32; LINK_DIM]) {
+    use std::arch::x86_64::*;
+    let (mut acc8, mut acc9) = (_mm256_setzero_ps(), _mm_setzero_ps());
+    let (mut y8, mut y9) = (_mm256_setzero_ps(), _mm_setzero_ps());
+    for (&slot, v) in slots.iter().zip(values) {
+        let (v8, v9, w8, w9) = lanes(v, &w[slot as usize]);
+        let wy = &w_y[slot as usize];
+        // SAFETY: `wy` holds 9 `f32`: the 32 bytes from its start and the 16 from its sixth
+        // element are in bounds.
+        let (wy8, wy4) = unsafe {
+            (
+                _mm256_loadu_ps(wy.as_ptr()),
+                _mm_loadu_ps(wy.as_ptr().add(5)),
+            )
+        };
+        acc8 = _mm256_add_ps(acc8, _mm256_mul_ps(w8, v8));
+        acc9 = _mm_add_ps(acc9, _mm_mul_ps(w9, v9));
+        y8 = _mm256_add_ps(y8, _mm256_mul_ps(wy8, v8));
+        y9 = _mm_add_ps(y9, _mm_mul_ps(wy4, v9));
+    }
+    (unpack(acc8, acc9), unpack(y8, y9))
 }
 
 /// A link's half-float values as `f32` (exact).
 #[inline(always)]
 fn decode(v: &[u16; LINK_DIM]) -> [f32; LINK_DIM] {
     std::array::from_fn(|d| f16::from_bits(v[d]).to_f32())
-}
-
-/// [`decode`] with the first 8 values converted by one F16C instruction (exact, as the
-/// software conversion).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx,f16c")]
-#[inline]
-fn decode_f16c(v: &[u16; LINK_DIM]) -> [f32; LINK_DIM] {
-    use std::arch::x86_64::{__m128i, _mm256_cvtph_ps, _mm256_storeu_ps, _mm_loadu_si128};
-    let mut x = [0.0f32; LINK_DIM];
-    // SAFETY: `v` holds 9 `u16`, so the 16 bytes from its start are in bounds (an unaligned
-    // load); `x` holds 9 `f32`, so the 32 bytes stored from its start are in bounds.
-    unsafe {
-        let lo = _mm_loadu_si128(v.as_ptr().cast::<__m128i>());
-        _mm256_storeu_ps(x.as_mut_ptr(), _mm256_cvtph_ps(lo));
-    }
-    x[LINK_DIM - 1] = f16::from_bits(v[LINK_DIM - 1]).to_f32();
-    x
 }
 
 #[cfg(test)]
@@ -430,20 +679,49 @@ mod tests {
     }
 
     #[test]
-    fn the_f16c_conversion_gives_the_bits_of_the_software_one() {
+    fn the_f16c_row_sums_give_the_bits_of_the_scalar_ones() {
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("f16c") {
-            // Every half float but the NaNs (whose payloads the two may treat differently;
-            // validated links hold none), nine to a link, in each of the nine places.
+        if std::arch::is_x86_feature_detected!("avx2")
+            && std::arch::is_x86_feature_detected!("f16c")
+        {
+            // Every half float but the NaNs (whose payloads the two conversions may treat
+            // differently; validated links hold none), nine to a link, in each of the nine
+            // places, three links to a row over seven senders' weights.
             let all: Vec<u16> = (0..=u16::MAX)
                 .filter(|&h| !f16::from_bits(h).is_nan())
                 .collect();
+            let weights = |phase: f32| -> Vec<[f32; LINK_DIM]> {
+                (0..7)
+                    .map(|s| {
+                        std::array::from_fn(|d| ((s * 9 + d) as f32 * 0.37 + phase).sin() * 3.0)
+                    })
+                    .collect()
+            };
+            let (w, w_y) = (weights(0.0), weights(1.0));
+            // Overflowing sums may give NaNs, whose payloads depend on operand order.
+            let same = |a: [f32; LINK_DIM], b: [f32; LINK_DIM]| {
+                a.iter()
+                    .zip(&b)
+                    .all(|(x, y)| x.to_bits() == y.to_bits() || (x.is_nan() && y.is_nan()))
+            };
             for shift in 0..LINK_DIM {
-                for chunk in all[shift..].chunks_exact(LINK_DIM) {
-                    let v: [u16; LINK_DIM] = std::array::from_fn(|d| chunk[d]);
-                    // SAFETY: this CPU has F16C (checked above).
-                    let fast = unsafe { decode_f16c(&v) };
-                    assert_eq!(fast.map(f32::to_bits), decode(&v).map(f32::to_bits));
+                let values: Vec<[u16; LINK_DIM]> = all[shift..]
+                    .chunks_exact(LINK_DIM)
+                    .map(|c| std::array::from_fn(|d| c[d]))
+                    .collect();
+                let slots: Vec<u32> = (0..values.len()).map(|k| (k * 5 % 7) as u32).collect();
+                for k in (0..values.len() - 3).step_by(3) {
+                    let (sl, vl) = (&slots[k..k + 3], &values[k..k + 3]);
+                    // SAFETY: this CPU has AVX2 and F16C (checked above).
+                    let (fast, fast2) =
+                        unsafe { (row_sum_f16c(sl, vl, &w), row_sums_f16c(sl, vl, &w, &w_y)) };
+                    let slow2 = row_sums::<false>(sl, vl, &w, &w_y);
+                    assert!(same(fast, row_sum::<false>(sl, vl, &w)), "{fast:?}");
+                    assert!(
+                        same(fast2.0, slow2.0) && same(fast2.1, slow2.1),
+                        "{fast2:?}"
+                    );
+                    assert!(same(fast2.0, fast));
                 }
             }
         }
@@ -478,6 +756,53 @@ mod tests {
             rl.apply_add_from(&e, 0.0, m, &mut got);
             assert_eq!(bits(&got[..m * 9]), bits(&start[..m * 9]), "below {m}");
             assert_eq!(bits(&got[m * 9..]), bits(&all[m * 9..]), "from {m}");
+        }
+    }
+
+    #[test]
+    fn the_dual_product_gives_s_e_and_the_bits_of_s_e_then_the_added_rows() {
+        let bytes = sample_bytes();
+        let a = validated(&bytes);
+        let rl = ReceiverLinks::build(a);
+        let e = sample_emission();
+        let y: Vec<f32> = e
+            .iter()
+            .enumerate()
+            .map(|(k, v)| 0.3 * v - 0.01 * k as f32)
+            .collect();
+        for (t, t_y) in [(0.0, 0.0), (0.5, 0.2)] {
+            let mut se_want = vec![0.0f32; 14 * 9];
+            let used_want = rl.apply(&e, t, &mut se_want);
+            for m in [0, 1, 5, 12, 14] {
+                let mut want = se_want.clone();
+                rl.apply_add_from(&y, t_y, m, &mut want);
+                // Stale values in the outputs are overwritten.
+                let (mut se, mut i) = (vec![7.0f32; 14 * 9], vec![-3.0f32; 14 * 9]);
+                let used = rl.apply_with_added_from(&e, t, &y, t_y, m, &mut se, &mut i);
+                assert_eq!(bits(&se), bits(&se_want), "S e, m {m}");
+                assert_eq!(bits(&i), bits(&want), "S e + S y, m {m}");
+                assert_eq!(used, used_want);
+            }
+        }
+        // The software and F16C kernels agree.
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2")
+            && std::arch::is_x86_feature_detected!("f16c")
+        {
+            let w = rl.sender_weights(&e, 0.0, &mut 0);
+            let w_y = rl.sender_weights(&y, 0.0, &mut 0);
+            let rows = rl.receiver_ids.len();
+            let run = |f16c: bool| {
+                let (mut se, mut i) = (vec![0.0f32; 14 * 9], vec![0.0f32; 14 * 9]);
+                if f16c {
+                    // SAFETY: the CPU has AVX2 and F16C (checked above).
+                    unsafe { rl.dual_chunk_f16c((&w, &w_y, 5), 0, rows, 0, &mut se, &mut i) };
+                } else {
+                    rl.dual_chunk::<false>((&w, &w_y, 5), 0, rows, 0, &mut se, &mut i);
+                }
+                (bits(&se), bits(&i))
+            };
+            assert_eq!(run(true), run(false));
         }
     }
 

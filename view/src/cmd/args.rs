@@ -106,12 +106,14 @@ pub struct RelightArgs {
     /// file that chains them (`bake --preset paper`, `--level0-paths 0`).
     #[arg(long, value_name = "STEPS", value_parser = clap::value_parser!(u32).range(0..=16))]
     pub bounce_feedback: Option<u32>,
-    /// Lagged bounce-light feedback, for a moving light: each frame applies the correction
-    /// computed from the previous frame's indirect light, in the same pass as `S e`, instead
-    /// of a step of its own after it (on Sponza 4-5 ms less per frame on 2 cores). A moving
-    /// light's correction is a frame late; a light that stops gets one more frame with its
-    /// own correction (a further step of the fixed point). The first frame takes the exact
-    /// step. `auto`: on in the window (`view open`), off for images and timings.
+    /// Lagged bounce light, for a moving light: each frame applies the bounce light
+    /// computed from the previous frame's indirect light in the same pass as `S e`, instead
+    /// of a pass of its own after it: the feedback's correction (files that chain their
+    /// bounces; on Sponza 4-5 ms less per frame on 2 cores) or the fine bounces' emission
+    /// from every sender point (files with traced level-0 rows, the default bake; 2-3 ms
+    /// less). A moving light's lagged part is a frame late; a light that stops gets one more
+    /// frame with its own (a further step of the fixed point, or the exact frame). The first
+    /// frame is exact. `auto`: on in the window (`view open`), off for images and timings.
     #[arg(long, value_enum, default_value_t = FeedbackLag::Auto)]
     pub feedback_lag: FeedbackLag,
     /// How the finer receivers' bounces 2 and later are emitted, for a file whose bounces 2

@@ -43,11 +43,7 @@ pub fn material_draws(
     });
     let white = albedo_texture(
         gpu,
-        &mlt_scenes::Texture {
-            width: 1,
-            height: 1,
-            texels: vec![[1.0; 3]],
-        },
+        &mlt_scenes::Texture::from_linear(1, 1, vec![[1.0; 3]]).expect("a valid 1x1 texture"),
     );
     let texture_views = texture_views(gpu, mesh);
     mesh.draws
@@ -86,14 +82,7 @@ fn texture_views(gpu: &Gpu, mesh: &GpuMesh) -> Vec<Option<wgpu::TextureView>> {
     let max_dim = gpu.device.limits().max_texture_dimension_2d;
     mesh.textures
         .iter()
-        .map(|t| {
-            (t.width > 0
-                && t.height > 0
-                && t.width <= max_dim
-                && t.height <= max_dim
-                && t.texels.len() == (t.width * t.height) as usize)
-                .then(|| albedo_texture(gpu, t))
-        })
+        .map(|t| (t.width() <= max_dim && t.height() <= max_dim).then(|| albedo_texture(gpu, t)))
         .collect()
 }
 
@@ -104,8 +93,8 @@ fn albedo_texture(gpu: &Gpu, t: &mlt_scenes::Texture) -> wgpu::TextureView {
         &wgpu::TextureDescriptor {
             label: Some("albedo texture"),
             size: wgpu::Extent3d {
-                width: t.width,
-                height: t.height,
+                width: t.width(),
+                height: t.height(),
                 depth_or_array_layers: 1,
             },
             mip_level_count: 1,
@@ -122,8 +111,9 @@ fn albedo_texture(gpu: &Gpu, t: &mlt_scenes::Texture) -> wgpu::TextureView {
 }
 
 fn half_texels(t: &mlt_scenes::Texture) -> Vec<u8> {
-    let mut out = Vec::with_capacity(t.texels.len() * 8);
-    for p in &t.texels {
+    let texels = t.texels();
+    let mut out = Vec::with_capacity(texels.len() * 8);
+    for p in texels {
         for c in [p[0], p[1], p[2], 1.0] {
             out.extend_from_slice(&half::f16::from_f32(c).to_le_bytes());
         }
