@@ -490,17 +490,40 @@ fn fine_bounces_from_every_sender_point_are_the_finer_rows_of_s_on_the_bounce_em
     assert_eq!(bits(&run(1, FineEmission::Level0).i), bits(&level0));
 }
 
+/// Relative RMS difference of `a` from `b`.
+fn rel_rms(a: &[f32], b: &[f32]) -> f64 {
+    let num: f64 = a.iter().zip(b).map(|(x, y)| f64::from(x - y).powi(2)).sum();
+    let den: f64 = b.iter().map(|y| f64::from(*y).powi(2)).sum();
+    (num / den).sqrt()
+}
+
+/// Frame `k` of a light moving 5 mm per frame under the small Cornell box's ceiling.
+fn moving_light(k: usize) -> Light {
+    let p = Vec3::new(0.25 + 0.005 * k as f32, 0.5, 0.28);
+    Light::point(p, [0.3, 0.25, 0.2]).unwrap()
+}
+
+/// The largest relative RMS difference of `lagged`'s indirect coefficients from `exact`'s over
+/// the moving light's `frames`.
+fn worst_lag(
+    lagged: &mut CpuRelighter,
+    exact: &mut CpuRelighter,
+    frames: std::ops::Range<usize>,
+) -> f64 {
+    frames
+        .map(|k| {
+            let a = lagged.relight(&moving_light(k)).i.clone();
+            rel_rms(&a, &exact.relight(&moving_light(k)).i)
+        })
+        .fold(0.0, f64::max)
+}
+
 #[test]
 fn lagged_bounce_feedback_is_one_pass_with_last_frames_correction_and_tracks_the_exact_step() {
     use mlt_relight::{BounceFeedbackOp, FineBounceOp, PullPushOp, ReceiverLinks};
     let (_d, file, ib, sender_levels, caster) = small_cornell("lagged", 64);
     let lb = file.links_bytes().unwrap().unwrap();
     let links = file.access_links(&lb).unwrap();
-    let light_at = |k: usize| {
-        // A light moving 5 mm per frame under the ceiling.
-        let p = Vec3::new(0.25 + 0.005 * k as f32, 0.5, 0.28);
-        Light::point(p, [0.3, 0.25, 0.2]).unwrap()
-    };
     let relighter = |lagged: bool| {
         let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, 4)
             .expect("relighting operators");
@@ -511,8 +534,8 @@ fn lagged_bounce_feedback_is_one_pass_with_last_frames_correction_and_tracks_the
     };
     let (mut lagged, mut exact) = (relighter(true), relighter(false));
     // The first frame has no previous correction: it is the exact step.
-    let first = lagged.relight(&light_at(0)).clone();
-    assert_eq!(bits(&first.i), bits(&exact.relight(&light_at(0)).i));
+    let first = lagged.relight(&moving_light(0)).clone();
+    assert_eq!(bits(&first.i), bits(&exact.relight(&moving_light(0)).i));
 
     // A later frame is one pass of S with the level-0 rows on e + d(previous i), then the
     // fine bounces: no step of its own.
@@ -520,7 +543,7 @@ fn lagged_bounce_feedback_is_one_pass_with_last_frames_correction_and_tracks_the
     let fine = FineBounceOp::build(&ib, links);
     let pp = PullPushOp::build(&ib, sender_levels);
     let d = BounceFeedbackOp::build(&ib, links, sender_levels).correction(&pp, &first.i);
-    let second = lagged.relight(&light_at(1)).clone();
+    let second = lagged.relight(&moving_light(1)).clone();
     let max_e = second.e.iter().fold(0.0f32, |m, v| m.max(v.abs()));
     let e_first: Vec<f32> = second.e.iter().zip(&d).map(|(a, b)| a + b).collect();
     let mut i = vec![0.0f32; ib.basis.len() * LINK_DIM];
@@ -531,37 +554,27 @@ fn lagged_bounce_feedback_is_one_pass_with_last_frames_correction_and_tracks_the
 
     // Over frames of a slowly moving light the lagged frames stay close to the exact step;
     // after a reset the next frame is the exact step again.
-    let rel = |a: &[f32], b: &[f32]| {
-        let num: f64 = a.iter().zip(b).map(|(x, y)| f64::from(x - y).powi(2)).sum();
-        let den: f64 = b.iter().map(|y| f64::from(*y).powi(2)).sum();
-        (num / den).sqrt()
-    };
-    let mut worst = 0.0f64;
-    for k in 2..8 {
-        let a = lagged.relight(&light_at(k)).i.clone();
-        let b = exact.relight(&light_at(k)).i.clone();
-        worst = worst.max(rel(&a, &b));
-    }
+    let worst = worst_lag(&mut lagged, &mut exact, 2..8);
     assert!(worst < 0.01, "lagged frames {worst} from the exact step");
     // And the lag matters at all: the last frame differs from the exact one.
     assert!(worst > 0.0);
     // When the light stops, its next frame takes its own correction: a further step of the
     // fixed point, so it is nearer the fixed point (16 exact steps) than the single exact
     // step is, and it is then reused.
-    let settled = lagged.relight(&light_at(7)).i.clone();
-    let exact7 = exact.relight(&light_at(7)).i.clone();
+    let settled = lagged.relight(&moving_light(7)).i.clone();
+    let exact7 = exact.relight(&moving_light(7)).i.clone();
     let fixed = {
         let mut r = relighter(false);
         r.bounce_feedback = 16;
-        r.relight(&light_at(7)).i.clone()
+        r.relight(&moving_light(7)).i.clone()
     };
-    let (near, one_step) = (rel(&settled, &fixed), rel(&exact7, &fixed));
+    let (near, one_step) = (rel_rms(&settled, &fixed), rel_rms(&exact7, &fixed));
     assert!(near < 0.5 * one_step, "{near} vs {one_step}");
-    assert!(rel(&settled, &exact7) < 5e-3);
-    assert!(lagged.relight(&light_at(7)).reused);
+    assert!(rel_rms(&settled, &exact7) < 5e-3);
+    assert!(lagged.relight(&moving_light(7)).reused);
     lagged.reset_lag();
-    let a = lagged.relight(&light_at(20)).i.clone();
-    assert_eq!(bits(&a), bits(&exact.relight(&light_at(20)).i));
+    let a = lagged.relight(&moving_light(20)).i.clone();
+    assert_eq!(bits(&a), bits(&exact.relight(&moving_light(20)).i));
 }
 
 /// With the lag, a file whose fine bounces re-emit from every sender point and take no
@@ -575,10 +588,6 @@ fn lagged_fine_bounces_share_the_pass_of_s_e_and_settle_to_the_exact_frame() {
     let (_d, file, ib, sender_levels, caster) = small_cornell("lagged_fine", 64);
     let lb = file.links_bytes().unwrap().unwrap();
     let links = file.access_links(&lb).unwrap();
-    let light_at = |k: usize| {
-        let p = Vec3::new(0.25 + 0.005 * k as f32, 0.5, 0.28);
-        Light::point(p, [0.3, 0.25, 0.2]).unwrap()
-    };
     let relighter = |lagged: bool| {
         let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, 4)
             .expect("relighting operators");
@@ -589,8 +598,8 @@ fn lagged_fine_bounces_share_the_pass_of_s_e_and_settle_to_the_exact_frame() {
         r
     };
     let (mut lagged, mut exact) = (relighter(true), relighter(false));
-    let first = lagged.relight(&light_at(0)).clone();
-    assert_eq!(bits(&first.i), bits(&exact.relight(&light_at(0)).i));
+    let first = lagged.relight(&moving_light(0)).clone();
+    assert_eq!(bits(&first.i), bits(&exact.relight(&moving_light(0)).i));
 
     // The next frame: `S e` with the rows of the finer receivers adding `S y`, `y` the
     // bounce emission of the first frame's `S e`; the same bits for 1 and 2 threads.
@@ -605,7 +614,7 @@ fn lagged_fine_bounces_share_the_pass_of_s_e_and_settle_to_the_exact_frame() {
         i
     };
     let y0 = feedback.emission(&pp, &s_e(&first.e));
-    let second = lagged.relight(&light_at(1)).clone();
+    let second = lagged.relight(&moving_light(1)).clone();
     let mut want = s_e(&second.e);
     let max_y = y0.iter().fold(0.0f32, |m, v| m.max(v.abs()));
     let n0 = ib.basis.level_range(0).len();
@@ -613,30 +622,20 @@ fn lagged_fine_bounces_share_the_pass_of_s_e_and_settle_to_the_exact_frame() {
     assert_eq!(bits(&second.i), bits(&want));
     let one_thread = with_threads(1, || {
         let mut r = relighter(true);
-        r.relight(&light_at(0));
-        r.relight(&light_at(1)).i.clone()
+        r.relight(&moving_light(0));
+        r.relight(&moving_light(1)).i.clone()
     });
     assert_eq!(bits(&one_thread), bits(&second.i));
 
-    let rel = |a: &[f32], b: &[f32]| {
-        let num: f64 = a.iter().zip(b).map(|(x, y)| f64::from(x - y).powi(2)).sum();
-        let den: f64 = b.iter().map(|y| f64::from(*y).powi(2)).sum();
-        (num / den).sqrt()
-    };
-    let mut worst = 0.0f64;
-    for k in 2..8 {
-        let a = lagged.relight(&light_at(k)).i.clone();
-        let b = exact.relight(&light_at(k)).i.clone();
-        worst = worst.max(rel(&a, &b));
-    }
+    let worst = worst_lag(&mut lagged, &mut exact, 2..8);
     assert!(worst < 0.01, "lagged frames {worst} from the exact ones");
     assert!(worst > 0.0);
     // The light stops: its next frame is the exact one, and is then reused.
-    let settled = lagged.relight(&light_at(7)).i.clone();
-    assert_eq!(bits(&settled), bits(&exact.relight(&light_at(7)).i));
-    assert!(lagged.relight(&light_at(7)).reused);
-    lagged.relight(&light_at(9));
+    let settled = lagged.relight(&moving_light(7)).i.clone();
+    assert_eq!(bits(&settled), bits(&exact.relight(&moving_light(7)).i));
+    assert!(lagged.relight(&moving_light(7)).reused);
+    lagged.relight(&moving_light(9));
     lagged.reset_lag();
-    let a = lagged.relight(&light_at(20)).i.clone();
-    assert_eq!(bits(&a), bits(&exact.relight(&light_at(20)).i));
+    let a = lagged.relight(&moving_light(20)).i.clone();
+    assert_eq!(bits(&a), bits(&exact.relight(&moving_light(20)).i));
 }
