@@ -19,8 +19,9 @@
 //! 3. `i = S e`, receiver-major in `f32` arithmetic ([`ReceiverLinks`]), skipping senders whose
 //!    light is negligible; then, when [`CpuRelighter::fine_bounces`] is set, the finer
 //!    receivers' bounces 2 and later, from the indirect light at every sender point through
-//!    their whole rows ([`FineEmission::Senders`]) or from the level-0 coefficients through
-//!    their links to level-0 senders ([`FineBounceOp`]), and,
+//!    their whole rows ([`FineEmission::Senders`]; with [`CpuRelighter::lagged_feedback`]
+//!    the previous frame's, in the same pass over the links as `S e`) or from the level-0
+//!    coefficients through their links to level-0 senders ([`FineBounceOp`]), and,
 //!    with [`CpuRelighter::bounce_feedback`], the finer receivers' bounce light re-emitted
 //!    through `S`'s level-0 rows ([`BounceFeedbackOp`]: `i` as the fixed point of
 //!    `i = S (e + P-dagger (n . R i) - y(i))`);
