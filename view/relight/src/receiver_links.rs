@@ -11,7 +11,8 @@ use mlt_format::links::{ArchivedLinks, LINK_DIM};
 /// count. The values stay half floats (22 bytes per link with the sender slot, against 40
 /// decoded): the product reads each link once per frame and is bound by memory traffic, and a
 /// half float's conversion to `f32` is exact, so the products are those of decoded values. On
-/// CPUs with F16C eight of a link's nine values are converted in one instruction.
+/// CPUs with AVX2 and F16C a link's values are converted, multiplied and summed eight and four
+/// at a time (`row_sum_f16c`).
 ///
 /// [`apply`](Self::apply) gives the same bits as [`ArchivedLinks::apply`] into a zeroed `i`:
 /// each receiver sums the same products (`(e_s * scale_s) * value`) in ascending sender order.
@@ -338,8 +339,8 @@ impl ReceiverLinks {
             .collect()
     }
 
-    /// [`ReceiverLinks::chunk`] compiled with AVX2 and F16C: 8 of a link's 9 values converted
-    /// and multiplied in one instruction each (no fused multiply-adds, so the same bits).
+    /// [`ReceiverLinks::chunk`] compiled with AVX2 and F16C ([`row_sum_f16c`]: no fused
+    /// multiply-adds, so the same bits).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,f16c")]
     fn chunk_f16c<const ADD: bool>(
