@@ -369,11 +369,9 @@ pub fn summary_markdown(s: &Summary) -> String {
 mod tests {
     use super::*;
 
-    fn temp(name: &str) -> PathBuf {
-        let d = std::env::temp_dir().join(format!("mlt-batch-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&d);
-        std::fs::create_dir_all(&d).unwrap();
-        d
+    /// A fresh directory, removed with its contents when dropped.
+    fn temp(name: &str) -> mlt_test_support::TempDir {
+        mlt_test_support::TempDir::new(&format!("batch-{name}"))
     }
 
     const MANIFEST: &str =
@@ -406,7 +404,6 @@ mod tests {
         };
         assert_eq!(key(&command_line.or(&job.options)), key(&explicit(3, 9)));
         assert_ne!(key(&job.options), key(&BakeOptions::default()));
-        let _ = std::fs::remove_dir_all(&d);
     }
 
     #[test]
@@ -431,6 +428,5 @@ mod tests {
         // A scene manifest given to the batch is one job; its [bake] table fails that job.
         let job = read_jobs(&manifest).unwrap().remove(0);
         assert_eq!(job.name, "room");
-        let _ = std::fs::remove_dir_all(&d);
     }
 }

@@ -73,11 +73,9 @@ pub fn directory(dir: &Path) -> Result<(), OutputError> {
 mod tests {
     use super::*;
 
-    fn temp(name: &str) -> PathBuf {
-        let d = std::env::temp_dir().join(format!("mlt-outcheck-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&d);
-        std::fs::create_dir_all(&d).unwrap();
-        d
+    /// A fresh directory, removed with its contents when dropped.
+    fn temp(name: &str) -> mlt_test_support::TempDir {
+        mlt_test_support::TempDir::new(&format!("outcheck-{name}"))
     }
 
     #[test]

@@ -9,11 +9,9 @@ use std::time::{Duration, Instant};
 /// Longest a bake of these scenes may take (debug build, shared machine).
 const LIMIT: Duration = Duration::from_secs(60);
 
-fn temp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("mlt-open-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A fresh directory, removed with its contents when dropped.
+fn temp(name: &str) -> mlt_test_support::TempDir {
+    mlt_test_support::TempDir::new(&format!("open-{name}"))
 }
 
 /// A floor (y = 0) and a back wall (z = 0) of the unit cube.

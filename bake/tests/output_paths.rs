@@ -1,14 +1,12 @@
 //! Outputs are checked before any work: a bake, a shard, a batch or a merge aimed at a
 //! directory that does not exist (or is a file) fails at once, naming the path.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
-fn temp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("mlt-outpath-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A fresh directory, removed with its contents when dropped.
+fn temp(name: &str) -> mlt_test_support::TempDir {
+    mlt_test_support::TempDir::new(&format!("outpath-{name}"))
 }
 
 /// Runs `bake` with `args`; asserts it fails before its first stage (no `[  time] stage`

@@ -83,11 +83,9 @@ fn seed() -> u64 {
         .unwrap_or(1)
 }
 
-fn temp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("mlt-fuzz-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A fresh directory, removed with its contents when dropped.
+fn temp(name: &str) -> mlt_test_support::TempDir {
+    mlt_test_support::TempDir::new(&format!("fuzz-{name}"))
 }
 
 /// Byte strings the mutator inserts or overwrites with.

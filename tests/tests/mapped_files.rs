@@ -24,9 +24,7 @@ fn positions(f: &BakedFile) -> Vec<[f32; 3]> {
 
 #[test]
 fn an_open_file_replaced_by_rename_keeps_its_old_contents() {
-    let d = std::env::temp_dir().join(format!("mlt-mapped-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
+    let d = mlt_test_support::TempDir::new("mapped");
     let path = d.join("scene.mlt");
     let (old, new) = (basis_bytes(2, 12), basis_bytes(3, 20));
     let opts = WriteOptions { compress: false };

@@ -101,9 +101,8 @@ impl Table {
 mod tests {
     use super::*;
 
-    fn write(name: &str, text: &str) -> PathBuf {
-        let dir = std::env::temp_dir().join(format!("mlt-plot-table-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+    /// Writes `text` to `name` in `dir`.
+    fn write(dir: &mlt_test_support::TempDir, name: &str, text: &str) -> PathBuf {
         let p = dir.join(name);
         std::fs::write(&p, text).unwrap();
         p
@@ -111,6 +110,8 @@ mod tests {
 
     #[test]
     fn fields_by_name_and_errors_that_name_file_row_and_column() {
+        let d = mlt_test_support::TempDir::new("plot-table");
+        let write = |name: &str, text: &str| write(&d, name, text);
         let t = Table::read(&write("ok.csv", "a, b,c\n\n1,x, \n2.5,y,3\n")).unwrap();
         assert_eq!(t.rows.len(), 2);
         assert_eq!(t.get(0, "b").unwrap(), "x");
