@@ -337,6 +337,12 @@ impl<'a> CpuRelighter<'a> {
             .get_or_init(|| FineBounceOp::build(self.ib, self.links))
     }
 
+    /// The level at or below which a sender's emission in `em` (RGB per sender point) is
+    /// skipped in a product: `skip_fraction` of its largest channel.
+    fn skip_threshold(&self, em: &[f32]) -> f32 {
+        self.skip_fraction * em.iter().fold(0.0f32, |m, v| m.max(v.abs()))
+    }
+
     /// Forgets the lagged bounce light: the next frame is computed exactly.
     pub fn reset_lag(&mut self) {
         self.feedback_prev = None;
@@ -565,8 +571,7 @@ impl Relight for CpuRelighter<'_> {
         flat.resize(self.flat.len() * LINK_DIM, 0.0);
 
         let t = Instant::now();
-        let max_e = e.iter().fold(0.0f32, |m, v| m.max(v.abs()));
-        let threshold = self.skip_fraction * max_e;
+        let threshold = self.skip_threshold(&e);
         // The bake writes one receiver per point; other files use the stored links.
         let receiver_major = self.links.receivers.to_native() as usize * LINK_DIM == n;
         let feedback = self.bounce_feedback > 0 && receiver_major;
@@ -595,13 +600,12 @@ impl Relight for CpuRelighter<'_> {
                 .apply_split(&e, &e_first, m, threshold, &mut i)
         } else if let Some(y) = &fine_prev {
             // `S e` (for the next frame's `y`) and `S e + S_fine y` in one pass.
-            let max_y = y.iter().fold(0.0f32, |m, v| m.max(v.abs()));
             self.se.resize(n, 0.0);
             self.receiver_links.apply_with_added_from(
                 &e,
                 threshold,
                 y,
-                self.skip_fraction * max_y,
+                self.skip_threshold(y),
                 m,
                 &mut self.se,
                 &mut i,
@@ -617,9 +621,8 @@ impl Relight for CpuRelighter<'_> {
             self.fine_prev = Some(self.feedback.emission(&self.pull_push, &self.se));
         } else if fine_senders {
             let y = self.feedback.emission(&self.pull_push, &i);
-            let max_y = y.iter().fold(0.0f32, |m, v| m.max(v.abs()));
             self.receiver_links
-                .apply_add_from(&y, self.skip_fraction * max_y, m, &mut i);
+                .apply_add_from(&y, self.skip_threshold(&y), m, &mut i);
             if fine_lag {
                 self.fine_prev = Some(y);
             }

@@ -214,8 +214,7 @@ impl ReceiverLinks {
         let parts = self.chunk_parts(rows, n, se).into_iter();
         let parts_i = self.chunk_parts(rows, n, i).into_iter();
         #[cfg(target_arch = "x86_64")]
-        let f16c = std::arch::is_x86_feature_detected!("avx2")
-            && std::arch::is_x86_feature_detected!("f16c");
+        let f16c = has_f16c_lanes();
         parts
             .zip(parts_i)
             .collect::<Vec<_>>()
@@ -304,8 +303,7 @@ impl ReceiverLinks {
             rest.fill(0.0);
         }
         #[cfg(target_arch = "x86_64")]
-        let f16c = std::arch::is_x86_feature_detected!("avx2")
-            && std::arch::is_x86_feature_detected!("f16c");
+        let f16c = has_f16c_lanes();
         parts.into_par_iter().for_each(|(c, first, out)| {
             #[cfg(target_arch = "x86_64")]
             if f16c {
@@ -599,6 +597,12 @@ fn row_sums_f16c(
         y9 = _mm_add_ps(y9, _mm_mul_ps(wy4, v9));
     }
     (unpack(acc8, acc9), unpack(y8, y9))
+}
+
+/// Whether this CPU has AVX2 and F16C, which the products' `_f16c` kernels are compiled for.
+#[cfg(target_arch = "x86_64")]
+fn has_f16c_lanes() -> bool {
+    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("f16c")
 }
 
 /// A link's half-float values as `f32` (exact).
