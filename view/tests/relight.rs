@@ -634,6 +634,15 @@ fn lagged_fine_bounces_share_the_pass_of_s_e_and_settle_to_the_exact_frame() {
     let settled = lagged.relight(&moving_light(7)).i.clone();
     assert_eq!(bits(&settled), bits(&exact.relight(&moving_light(7)).i));
     assert!(lagged.relight(&moving_light(7)).reused);
+    // Turning the flattening off forces the next frame to be computed; its lagged part is
+    // this light's own, so that frame is exact and settled: the one after is reused.
+    lagged.set_flatten_on_cpu(false);
+    let again = lagged.relight(&moving_light(7));
+    assert!(!again.reused);
+    assert_eq!(bits(&again.i), bits(&settled));
+    assert!(again.flat.is_empty());
+    assert!(lagged.relight(&moving_light(7)).reused);
+    lagged.set_flatten_on_cpu(true);
     lagged.relight(&moving_light(9));
     lagged.reset_lag();
     let a = lagged.relight(&moving_light(20)).i.clone();

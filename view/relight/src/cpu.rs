@@ -192,6 +192,11 @@ pub struct CpuRelighter<'a> {
     /// False after a frame that took a correction computed under another light: the same
     /// light again is then relit once more (with its own correction) instead of reused.
     lag_settled: bool,
+    /// The light of the frame that computed the lagged parts held for the next frame
+    /// (`feedback_prev`, `fine_prev`): they are a frame's own when its light is this one.
+    /// Kept apart from `last`, which [`Relight::set_flatten_on_cpu`] forgets to force a
+    /// recomputation without making the lagged parts stale.
+    lag_light: Option<Light>,
     frame: Frame,
     last: Option<Light>,
 }
@@ -307,6 +312,7 @@ impl<'a> CpuRelighter<'a> {
             fine_prev: None,
             se: Vec::new(),
             lag_settled: true,
+            lag_light: None,
             frame: Frame::default(),
             last: None,
         })
@@ -590,8 +596,9 @@ impl Relight for CpuRelighter<'_> {
         } else {
             None
         };
-        // A lagged part from this same light's last frame is the frame's own.
-        self.lag_settled = (prev.is_none() && fine_prev.is_none()) || same_light;
+        // A lagged part computed under this same light is the frame's own.
+        self.lag_settled =
+            (prev.is_none() && fine_prev.is_none()) || self.lag_light.as_ref() == Some(light);
         let m = self.ib.basis.level_range(0).len();
         let used = if let Some(d) = &prev {
             // The level-0 rows take last frame's correction with the emission.
@@ -673,6 +680,7 @@ impl Relight for CpuRelighter<'_> {
             reused: false,
         };
         self.last = Some(*light);
+        self.lag_light = Some(*light);
         &self.frame
     }
 }
