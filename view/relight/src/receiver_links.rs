@@ -30,14 +30,42 @@ pub struct ReceiverLinks {
     slots: Vec<u32>,
     /// The (unscaled) link values, half-float bits.
     values: Vec<[u16; LINK_DIM]>,
+    /// The first row of each parallel task of the products, ascending from 0, then the number
+    /// of rows ([`task_starts`]).
+    task_starts: Vec<u32>,
 }
 
 /// The sender weights of a product: those of most rows, those of the rows of receivers
 /// `0..m`, `m`, and the receivers below which rows are skipped (neither computed nor written).
 type SenderWeights<'a> = (&'a [[f32; LINK_DIM]], &'a [[f32; LINK_DIM]], usize, usize);
 
-/// Receivers per parallel task of [`ReceiverLinks::apply`].
+/// Most receivers per parallel task of the products ([`task_starts`]).
 const RECEIVER_CHUNK: usize = 1024;
+
+/// Links per parallel task of the products, at least ([`task_starts`]).
+const CHUNK_LINKS: usize = 1 << 15;
+
+/// The first row of each parallel task of the products over the rows of `offsets` (one more
+/// than the rows), then the number of rows: a task ends after [`RECEIVER_CHUNK`] rows or once
+/// it holds [`CHUNK_LINKS`] links, whichever comes first. The link count matters because the
+/// rows are far from equal: the coarsest receivers' rows (the first, by index) hold most of
+/// the links (nine tenths of the Cornell box's, a third of Sponza's), and tasks of a fixed
+/// number of rows put them all in one task, which then takes most of the product's time
+/// whatever the number of threads. Each row is summed alike in any task, so the split does
+/// not change the result.
+fn task_starts(offsets: &[u32]) -> Vec<u32> {
+    let rows = offsets.len().saturating_sub(1);
+    let mut starts = vec![0u32];
+    let mut at = 0usize;
+    for q in 1..rows {
+        if q - at >= RECEIVER_CHUNK || (offsets[q] - offsets[at]) as usize >= CHUNK_LINKS {
+            starts.push(q as u32);
+            at = q;
+        }
+    }
+    starts.push(rows as u32);
+    starts
+}
 
 impl ReceiverLinks {
     /// Transposes validated links (call [`ArchivedLinks::validate`] first).
@@ -104,6 +132,7 @@ impl ReceiverLinks {
             sender_ids,
             scales,
             receiver_ids,
+            task_starts: task_starts(&offsets),
             offsets,
             slots,
             values,
@@ -121,7 +150,8 @@ impl ReceiverLinks {
             + self.scales.len()
             + self.receiver_ids.len()
             + self.offsets.len()
-            + self.slots.len())
+            + self.slots.len()
+            + self.task_starts.len())
             + 2 * LINK_DIM * self.values.len()
     }
 
@@ -247,6 +277,18 @@ impl ReceiverLinks {
         parts
     }
 
+    /// The number of parallel tasks over the first `rows` rows.
+    fn tasks(&self, rows: usize) -> usize {
+        self.task_starts.split_last().map_or(0, |(_, starts)| {
+            starts.partition_point(|&q| (q as usize) < rows)
+        })
+    }
+
+    /// The rows of task `c` of those over the first `rows` rows.
+    fn task_rows(&self, c: usize, rows: usize) -> std::ops::Range<usize> {
+        self.task_starts[c] as usize..(self.task_starts[c + 1] as usize).min(rows)
+    }
+
     /// [`ReceiverLinks::chunk_parts`] without touching the points past the chunks, which are
     /// returned.
     #[allow(clippy::type_complexity)]
@@ -257,13 +299,13 @@ impl ReceiverLinks {
         buf: &'b mut [f32],
     ) -> (Vec<(usize, usize, &'b mut [f32])>, &'b mut [f32]) {
         let receivers = &self.receiver_ids[..rows];
-        let chunks = receivers.len().div_ceil(RECEIVER_CHUNK);
+        let chunks = self.tasks(rows);
         let mut parts = Vec::with_capacity(chunks.max(1));
         let mut rest = buf;
         let mut at = 0usize;
         for c in 0..chunks {
             let end = if c + 1 < chunks {
-                receivers[(c + 1) * RECEIVER_CHUNK] as usize
+                receivers[self.task_starts[c + 1] as usize] as usize
             } else {
                 n
             };
@@ -370,7 +412,7 @@ impl ReceiverLinks {
         if !ADD {
             out.fill(0.0);
         }
-        let qs = c * RECEIVER_CHUNK..((c + 1) * RECEIVER_CHUNK).min(rows);
+        let qs = self.task_rows(c, rows);
         for q in qs {
             let point = receivers[q] as usize;
             if point < skip {
@@ -423,7 +465,7 @@ impl ReceiverLinks {
     ) {
         out_se.fill(0.0);
         out_i.fill(0.0);
-        let qs = c * RECEIVER_CHUNK..((c + 1) * RECEIVER_CHUNK).min(rows);
+        let qs = self.task_rows(c, rows);
         for q in qs {
             let point = self.receiver_ids[q] as usize;
             let r = point - first;
@@ -809,6 +851,79 @@ mod tests {
             };
             assert_eq!(run(true), run(false));
         }
+    }
+
+    #[test]
+    fn tasks_split_the_heavy_rows_and_leave_every_row_its_bits() {
+        // 3,000 senders reach the first 24 of 5,000 receivers (3,000 links each, as level 0's
+        // rows do) and a few of the rest each (light rows); 76 receivers have no link.
+        let (n, senders) = (5_000u32, 3_000u32);
+        let cols: Vec<Vec<(u32, [f32; 9])>> = (0..senders)
+            .map(|s| {
+                (0..n)
+                    .filter(|&r| r < 24 || (r >= 100 && (r * 7 + s) % 97 == 0))
+                    .map(|r| {
+                        let v = std::array::from_fn(|d| {
+                            ((s * 13 + r * 5 + d as u32) as f32 * 0.11).sin()
+                        });
+                        (r, v)
+                    })
+                    .collect()
+            })
+            .collect();
+        let (links, _) = Links::pack(
+            n,
+            senders,
+            cols.iter().enumerate().map(|(s, c)| SenderLinks {
+                sender: s as u32,
+                links: c,
+            }),
+        );
+        let bytes = rkyv::to_bytes::<rancor::Error>(&links).unwrap();
+        let a = validated(&bytes);
+        let rl = ReceiverLinks::build(a);
+        let rows = rl.receiver_ids.len();
+        assert!(rows > 2 * RECEIVER_CHUNK, "{rows}");
+        // The tasks cover the rows in order; each holds at most RECEIVER_CHUNK rows, and
+        // fewer than CHUNK_LINKS links before its last row.
+        let starts = &rl.task_starts;
+        assert_eq!((starts[0], *starts.last().unwrap()), (0, rows as u32));
+        assert!(starts.windows(2).all(|w| w[0] < w[1]));
+        for w in starts.windows(2) {
+            let (q0, q1) = (w[0] as usize, w[1] as usize);
+            assert!(q1 - q0 <= RECEIVER_CHUNK);
+            assert!(((rl.offsets[q1 - 1] - rl.offsets[q0]) as usize) < CHUNK_LINKS);
+        }
+        // The heavy rows (72,000 links) are spread over three tasks (eleven rows each)...
+        let heavy_tasks = rl.tasks(24);
+        assert_eq!(heavy_tasks, 3);
+        assert_eq!(rl.tasks(0), 0);
+        assert_eq!(rl.tasks(rows), starts.len() - 1);
+        // ...and every product gives the stored links' bits, for any thread count.
+        let e: Vec<f32> = (0..senders as usize * 3)
+            .map(|k| 0.5 + (k as f32 * 0.37).cos())
+            .collect();
+        let mut want = vec![0.0f32; n as usize * 9];
+        a.apply(&e, 0.0, &mut want);
+        for threads in [1, 2, 3] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let got = pool.install(|| {
+                let mut got = vec![f32::NAN; n as usize * 9];
+                rl.apply(&e, 0.0, &mut got);
+                got
+            });
+            assert_eq!(bits(&got), bits(&want), "{threads} threads");
+        }
+        // The dual product over the same tasks: `S e`, and `S e` plus the rows from 50 on.
+        let (mut se, mut i) = (vec![f32::NAN; want.len()], vec![f32::NAN; want.len()]);
+        rl.apply_with_added_from(&e, 0.0, &e, 0.0, 50, &mut se, &mut i);
+        assert_eq!(bits(&se), bits(&want));
+        let mut twice = want.clone();
+        rl.apply_add_from(&e, 0.0, 50, &mut twice);
+        assert_eq!(bits(&i), bits(&twice));
     }
 
     #[test]
