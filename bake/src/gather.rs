@@ -70,6 +70,17 @@ impl Scratch {
         }
     }
 
+    /// Marks sender `j` touched and returns its value, to be added to.
+    #[inline]
+    pub fn touch(&mut self, j: u32) -> &mut [f32; LINK_DIM] {
+        let ju = j as usize;
+        if !self.touched_mark[ju] {
+            self.touched_mark[ju] = true;
+            self.touched.push(j);
+        }
+        &mut self.acc[ju]
+    }
+
     /// Puts the touched senders in ascending order. When they are a large share of all senders
     /// (a finer receiver's Eq. 17 subtraction touches every sender of its parents' rows,
     /// thousands) a scan of the marks gives that order in time linear in the senders, cheaper
