@@ -583,6 +583,31 @@ fn lagged_bounce_feedback_is_one_pass_with_last_frames_correction_and_tracks_the
 /// frame's `S e`. A moving light's frames stay near the exact ones, a light that stops gets
 /// the exact frame on its next call (then reused), and a reset gives the exact frame.
 #[test]
+fn the_lag_pays_where_the_finer_rows_links_outweigh_writing_s_e_apart() {
+    use mlt_relight::ReceiverLinks;
+    let (_d, file, ib, sender_levels, caster) = small_cornell("lag_pays", 16);
+    let lb = file.links_bytes().unwrap().unwrap();
+    let links = file.access_links(&lb).unwrap();
+    let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, 4).unwrap();
+    r.fine_bounces = true;
+    // The fine bounces from every sender point: the bytes of the finer rows' links, read once
+    // less, against `S e`'s own output (written: twice its bytes).
+    let n = ib.basis.len();
+    let finer = ReceiverLinks::build(links).links_from(ib.basis.level_range(0).len());
+    assert!(finer > 0 && finer < links.link_count());
+    assert_eq!(r.lag_pays(), 22 * finer > 2 * 36 * n);
+    // Nothing lagged: the level-0 emission, or no fine bounces.
+    r.fine_emission = FineEmission::Level0;
+    assert!(!r.lag_pays());
+    r.fine_emission = FineEmission::Senders;
+    r.fine_bounces = false;
+    assert!(!r.lag_pays());
+    // The feedback's lag saves its own product.
+    r.bounce_feedback = 1;
+    assert!(r.lag_pays());
+}
+
+#[test]
 fn lagged_fine_bounces_share_the_pass_of_s_e_and_settle_to_the_exact_frame() {
     use mlt_relight::{BounceFeedbackOp, PullPushOp, ReceiverLinks};
     let (_d, file, ib, sender_levels, caster) = small_cornell("lagged_fine", 64);

@@ -155,6 +155,14 @@ impl ReceiverLinks {
             + 2 * LINK_DIM * self.values.len()
     }
 
+    /// Links of the rows of receivers `m..`.
+    pub fn links_from(&self, m: usize) -> usize {
+        let q = self.receiver_ids.partition_point(|&r| (r as usize) < m);
+        self.offsets
+            .last()
+            .map_or(0, |&end| (end - self.offsets[q]) as usize)
+    }
+
     /// Receivers with at least one link, ascending (the only ones `S e` can light).
     pub fn receiver_ids(&self) -> &[u32] {
         &self.receiver_ids

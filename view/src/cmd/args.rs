@@ -113,7 +113,10 @@ pub struct RelightArgs {
     /// from every sender point (files with traced level-0 rows, the default bake; 2-3 ms
     /// less). A moving light's lagged part is a frame late; a light that stops gets one more
     /// frame with its own (a further step of the fixed point, or the exact frame). The first
-    /// frame is exact. `auto`: on in the window (`view open`), off for images and timings.
+    /// frame is exact. `auto`: on in the window (`view open`) where it saves work (always
+    /// with the feedback; with the fine bounces where the finer rows' links outweigh writing
+    /// `S e` apart: on both Sponzas, not on the built-in Cornell boxes), off for images and
+    /// timings.
     #[arg(long, value_enum, default_value_t = FeedbackLag::Auto)]
     pub feedback_lag: FeedbackLag,
     /// How the finer receivers' bounces 2 and later are emitted, for a file whose bounces 2
@@ -162,7 +165,7 @@ impl FineEmissionArg {
 /// [`RelightArgs::feedback_lag`].
 #[derive(ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum FeedbackLag {
-    /// On in the window, off elsewhere.
+    /// On in the window where it saves work for the file, off elsewhere.
     Auto,
     /// Last frame's correction in every command.
     On,
@@ -171,10 +174,12 @@ pub enum FeedbackLag {
 }
 
 impl FeedbackLag {
-    /// Whether the feedback is lagged, in the window (`in_window`) or elsewhere.
-    pub fn lagged(self, in_window: bool) -> bool {
+    /// Whether the feedback is lagged, in the window (`in_window`) or elsewhere, for a file
+    /// and settings where lagging saves work (`pays`, [`mlt_relight::CpuRelighter::lag_pays`])
+    /// or not.
+    pub fn lagged(self, in_window: bool, pays: bool) -> bool {
         match self {
-            FeedbackLag::Auto => in_window,
+            FeedbackLag::Auto => in_window && pays,
             FeedbackLag::On => true,
             FeedbackLag::Off => false,
         }
@@ -282,6 +287,21 @@ pub struct ProbeArgs {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_automatic_lag_is_on_in_the_window_only_where_it_pays() {
+        use FeedbackLag::*;
+        let cases = [
+            (Auto, [false, false, false, true]),
+            (On, [true; 4]),
+            (Off, [false; 4]),
+        ];
+        for (lag, want) in cases {
+            let got = [(false, false), (false, true), (true, false), (true, true)]
+                .map(|(window, pays)| lag.lagged(window, pays));
+            assert_eq!(got, want, "{lag:?}");
+        }
+    }
 
     #[test]
     fn normal_powers_are_finite_and_at_least_two() {

@@ -103,8 +103,8 @@ pub fn with_viewing<T>(args: &BakedArgs, f: impl FnOnce(Viewing<'_>) -> Result<T
     if !relight.no_fine_bounces {
         let traced = file.bounce_method()?;
         relighter.use_bounce_corrections(&tm, traced.as_ref(), relight.bounce_feedback);
-        relighter.lagged_feedback = relight.feedback_lag.lagged(false);
         relighter.fine_emission = relight.fine_emission.emission();
+        relighter.lagged_feedback = relight.feedback_lag.lagged(false, relighter.lag_pays());
     }
     if relighter.support_average {
         relighter.build_support_tables();

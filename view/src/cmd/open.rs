@@ -31,9 +31,11 @@ pub struct OpenArgs {
 
 pub fn run(args: &OpenArgs) -> Result<()> {
     with_viewing(&args.baked, |mut v| {
-        // Interactive: a light that moves is relit with last frame's correction, unless the
-        // command line says otherwise (`with_viewing` set it for images).
-        v.relighter.lagged_feedback = args.baked.relight.feedback_lag.lagged(true);
+        // Interactive: a light that moves is relit with last frame's correction where that
+        // saves work, unless the command line says otherwise (`with_viewing` set it for
+        // images).
+        let pays = v.relighter.lag_pays();
+        v.relighter.lagged_feedback = args.baked.relight.feedback_lag.lagged(true, pays);
         let moving_light = args.moving_light.then(|| v.path_radius());
         mlt_view::window::run(mlt_view::window::WindowSetup {
             title: format!("view {}", v.path.display()),

@@ -82,6 +82,7 @@ fn relight_frames(args: &TimingsArgs, v: &mut Viewing<'_>) -> serde_json::Value 
         "fine_emission": v.relighter.fine_emission,
         "bounce_feedback_steps": v.relighter.bounce_feedback,
         "lagged_feedback": v.relighter.lagged_feedback,
+        "lag_pays": v.relighter.lag_pays(),
         "median_averaged_points": median(averaged),
         "load": v.relighter.load_stats(),
         "gpu": "not used: CPU relighting only (`view render FILE --out DIR` renders)",
