@@ -619,6 +619,16 @@ fn pack_s(
             links: col,
         }),
     );
+    let max_link = columns
+        .iter()
+        .flat_map(|(_, col)| col.iter())
+        .fold(0.0f64, |m, (_, v)| {
+            m.max(crate::gather::link_norm(v) as f64)
+        });
+    // The sender-major rows (40 bytes a link) are done with: freed before the sizes below
+    // serialise the links and the basis once more, which would otherwise add to them at the
+    // bake's peak of memory.
+    drop(columns);
     let links_bytes = mlt_format::file::archived_len(&links)?;
     let basis_bytes = mlt_format::file::basis_archived_len(ib)?;
     let stored_basis_bytes = if levels_stored < levels {
@@ -626,12 +636,6 @@ fn pack_s(
     } else {
         basis_bytes
     };
-    let max_link = columns
-        .iter()
-        .flat_map(|(_, col)| col.iter())
-        .fold(0.0f64, |m, (_, v)| {
-            m.max(crate::gather::link_norm(v) as f64)
-        });
     Ok(PackedS {
         links,
         qerr,

@@ -52,7 +52,9 @@ use std::ops::Deref;
 use std::path::Path;
 
 use rkyv::util::AlignedVec;
-use xxhash_rust::xxh3::xxh3_64;
+use std::io::{Seek, SeekFrom, Write};
+
+use xxhash_rust::xxh3::{xxh3_64, Xxh3};
 
 use crate::error::FormatError;
 
@@ -99,52 +101,132 @@ fn align_up(x: usize) -> usize {
 
 /// Serialises sections into a complete file image with `input_key` in the header.
 /// Deterministic: the same sections give the same bytes (zstd at a fixed level,
-/// single-threaded).
+/// single-threaded). The bytes are those [`Encoder`] writes.
 pub fn encode(sections: &[SectionIn<'_>], input_key: u64) -> Result<Vec<u8>, FormatError> {
-    let header_len = align_up(FIXED_HEADER + ENTRY_SIZE * sections.len());
-    let mut out = vec![0u8; header_len];
-    let mut entries = Vec::with_capacity(sections.len());
+    let mut out = std::io::Cursor::new(Vec::new());
+    let mut enc = Encoder::new(&mut out, sections.len(), input_key).map_err(write_err)?;
     for s in sections {
+        enc.add(s)?;
+    }
+    enc.finish().map_err(write_err)?;
+    Ok(out.into_inner())
+}
+
+fn write_err(e: std::io::Error) -> FormatError {
+    FormatError::Serialize {
+        tag: "file".into(),
+        detail: e.to_string(),
+    }
+}
+
+/// Writes a file image section by section to a seekable writer, so that a section's bytes need
+/// not outlive its [`Encoder::add`] and the whole image is never held in memory: the header's
+/// place is filled with zeros first, the payload's checksum is accumulated as the sections
+/// pass, and [`Encoder::finish`] writes the header over its place. The bytes are those of
+/// [`encode`] for the same sections in the same order.
+pub struct Encoder<W: Write + Seek> {
+    w: W,
+    sections: usize,
+    input_key: u64,
+    header_len: usize,
+    /// Bytes written so far, header's place included.
+    len: usize,
+    entries: Vec<SectionEntry>,
+    payload: Xxh3,
+}
+
+impl<W: Write + Seek> Encoder<W> {
+    /// Starts an image of `sections` sections at the writer's start.
+    pub fn new(mut w: W, sections: usize, input_key: u64) -> std::io::Result<Encoder<W>> {
+        let header_len = align_up(FIXED_HEADER + ENTRY_SIZE * sections);
+        w.seek(SeekFrom::Start(0))?;
+        w.write_all(&vec![0u8; header_len])?;
+        Ok(Encoder {
+            w,
+            sections,
+            input_key,
+            header_len,
+            len: header_len,
+            entries: Vec::with_capacity(sections),
+            payload: Xxh3::new(),
+        })
+    }
+
+    /// Appends one section (compressed when it asks), padded to the alignment. An error
+    /// names the section; more sections than announced are refused.
+    pub fn add(&mut self, s: &SectionIn<'_>) -> Result<(), FormatError> {
+        let tag = String::from_utf8_lossy(&s.tag).into_owned();
+        let err = |detail: String| FormatError::Serialize {
+            tag: tag.clone(),
+            detail,
+        };
+        if self.entries.len() == self.sections {
+            return Err(err(format!(
+                "more than the {} sections announced",
+                self.sections
+            )));
+        }
         let stored: std::borrow::Cow<[u8]> = if s.compress {
             zstd::bulk::compress(s.bytes, 9)
-                .map_err(|e| FormatError::Serialize {
-                    tag: String::from_utf8_lossy(&s.tag).into_owned(),
-                    detail: e.to_string(),
-                })?
+                .map_err(|e| err(e.to_string()))?
                 .into()
         } else {
             s.bytes.into()
         };
-        let offset = out.len();
-        out.extend_from_slice(&stored);
-        out.resize(align_up(out.len()), 0);
-        entries.push(SectionEntry {
+        let offset = self.len;
+        let pad = align_up(offset + stored.len()) - offset - stored.len();
+        for part in [&stored[..], &[0u8; ALIGN][..pad]] {
+            self.w.write_all(part).map_err(|e| err(e.to_string()))?;
+            self.payload.update(part);
+        }
+        self.len += stored.len() + pad;
+        self.entries.push(SectionEntry {
             tag: s.tag,
             compressed: s.compress,
             offset: offset as u64,
             stored_len: stored.len() as u64,
             raw_len: s.bytes.len() as u64,
         });
+        Ok(())
     }
-    let file_len = out.len() as u64;
-    out[0..8].copy_from_slice(&MAGIC);
-    out[8..10].copy_from_slice(&VERSION_MAJOR.to_le_bytes());
-    out[10..12].copy_from_slice(&VERSION_MINOR.to_le_bytes());
-    out[16..20].copy_from_slice(&(header_len as u32).to_le_bytes());
-    out[20..24].copy_from_slice(&(sections.len() as u32).to_le_bytes());
-    out[24..32].copy_from_slice(&file_len.to_le_bytes());
-    out[48..56].copy_from_slice(&input_key.to_le_bytes());
-    for (i, e) in entries.iter().enumerate() {
-        let o = FIXED_HEADER + i * ENTRY_SIZE;
-        out[o..o + 4].copy_from_slice(&e.tag);
-        let flags = if e.compressed { FLAG_ZSTD } else { 0 };
-        out[o + 4..o + 8].copy_from_slice(&flags.to_le_bytes());
-        out[o + 8..o + 16].copy_from_slice(&e.offset.to_le_bytes());
-        out[o + 16..o + 24].copy_from_slice(&e.stored_len.to_le_bytes());
-        out[o + 24..o + 32].copy_from_slice(&e.raw_len.to_le_bytes());
+
+    /// Writes the header over its place and returns the writer and the image's length. Fails
+    /// when fewer sections were added than announced.
+    pub fn finish(mut self) -> std::io::Result<(W, u64)> {
+        if self.entries.len() != self.sections {
+            return Err(std::io::Error::other(format!(
+                "{} of the {} sections announced were added",
+                self.entries.len(),
+                self.sections
+            )));
+        }
+        let mut h = vec![0u8; self.header_len];
+        h[0..8].copy_from_slice(&MAGIC);
+        h[8..10].copy_from_slice(&VERSION_MAJOR.to_le_bytes());
+        h[10..12].copy_from_slice(&VERSION_MINOR.to_le_bytes());
+        h[16..20].copy_from_slice(&(self.header_len as u32).to_le_bytes());
+        h[20..24].copy_from_slice(&(self.sections as u32).to_le_bytes());
+        h[24..32].copy_from_slice(&(self.len as u64).to_le_bytes());
+        h[48..56].copy_from_slice(&self.input_key.to_le_bytes());
+        for (i, e) in self.entries.iter().enumerate() {
+            let o = FIXED_HEADER + i * ENTRY_SIZE;
+            h[o..o + 4].copy_from_slice(&e.tag);
+            let flags = if e.compressed { FLAG_ZSTD } else { 0 };
+            h[o + 4..o + 8].copy_from_slice(&flags.to_le_bytes());
+            h[o + 8..o + 16].copy_from_slice(&e.offset.to_le_bytes());
+            h[o + 16..o + 24].copy_from_slice(&e.stored_len.to_le_bytes());
+            h[o + 24..o + 32].copy_from_slice(&e.raw_len.to_le_bytes());
+        }
+        // The checksums as `reseal` writes them: the payload's, then the header's with its
+        // own field zeroed.
+        h[32..40].copy_from_slice(&self.payload.digest().to_le_bytes());
+        let header_hash = xxh3_64(&h);
+        h[40..48].copy_from_slice(&header_hash.to_le_bytes());
+        self.w.seek(SeekFrom::Start(0))?;
+        self.w.write_all(&h)?;
+        self.w.seek(SeekFrom::Start(self.len as u64))?;
+        Ok((self.w, self.len as u64))
     }
-    reseal(&mut out);
-    Ok(out)
 }
 
 /// Writes both checksums of a file image from its contents: the payload's (bytes
@@ -369,6 +451,65 @@ mod tests {
             },
         ];
         encode(&sections, 0x1234).unwrap()
+    }
+
+    #[test]
+    fn the_encoder_writes_the_sealed_image_byte_for_byte() {
+        // The image laid out by hand: the header's place, each section padded to the
+        // alignment, the header's fields, then both checksums by `reseal`.
+        let a: Vec<u8> = (0..1000u32).map(|i| (i * 7 % 251) as u8).collect();
+        let b = b"hello".to_vec();
+        let empty: Vec<u8> = Vec::new();
+        let parts = [(*b"AAAA", &a), (*b"BBBB", &b), (*b"CCCC", &empty)];
+        let header_len = align_up(FIXED_HEADER + ENTRY_SIZE * parts.len());
+        let mut want = vec![0u8; header_len];
+        let mut entries = Vec::new();
+        for (tag, bytes) in &parts {
+            entries.push((*tag, want.len() as u64, bytes.len() as u64));
+            want.extend_from_slice(bytes);
+            want.resize(align_up(want.len()), 0);
+        }
+        want[0..8].copy_from_slice(&MAGIC);
+        want[8..10].copy_from_slice(&VERSION_MAJOR.to_le_bytes());
+        want[10..12].copy_from_slice(&VERSION_MINOR.to_le_bytes());
+        want[16..20].copy_from_slice(&(header_len as u32).to_le_bytes());
+        want[20..24].copy_from_slice(&(parts.len() as u32).to_le_bytes());
+        let file_len = want.len() as u64;
+        want[24..32].copy_from_slice(&file_len.to_le_bytes());
+        want[48..56].copy_from_slice(&0x5678u64.to_le_bytes());
+        for (i, (tag, offset, len)) in entries.iter().enumerate() {
+            let o = FIXED_HEADER + i * ENTRY_SIZE;
+            want[o..o + 4].copy_from_slice(tag);
+            want[o + 8..o + 16].copy_from_slice(&offset.to_le_bytes());
+            want[o + 16..o + 24].copy_from_slice(&len.to_le_bytes());
+            want[o + 24..o + 32].copy_from_slice(&len.to_le_bytes());
+        }
+        assert!(reseal(&mut want));
+        let sections: Vec<SectionIn> = parts
+            .iter()
+            .map(|(tag, bytes)| SectionIn {
+                tag: *tag,
+                bytes,
+                compress: false,
+            })
+            .collect();
+        assert_eq!(encode(&sections, 0x5678).unwrap(), want);
+        // Into a writer that holds other bytes: the image is written from its start, over them.
+        let mut enc = Encoder::new(std::io::Cursor::new(vec![9u8; 4000]), 3, 0x5678).unwrap();
+        for s in &sections {
+            enc.add(s).unwrap();
+        }
+        let (w, len) = enc.finish().unwrap();
+        assert_eq!(len, file_len);
+        assert_eq!(&w.into_inner()[..want.len()], &want[..]);
+        // Not the sections announced: refused.
+        let mut enc = Encoder::new(std::io::Cursor::new(Vec::new()), 2, 0).unwrap();
+        enc.add(&sections[0]).unwrap();
+        assert!(enc.finish().is_err());
+        let mut enc = Encoder::new(std::io::Cursor::new(Vec::new()), 1, 0).unwrap();
+        enc.add(&sections[0]).unwrap();
+        let e = enc.add(&sections[1]).unwrap_err().to_string();
+        assert!(e.contains("BBBB") && e.contains("more than the 1"), "{e}");
     }
 
     #[test]

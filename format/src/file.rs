@@ -125,55 +125,95 @@ fn ser_err(tag: [u8; 4]) -> impl Fn(rancor::Error) -> FormatError {
     }
 }
 
-/// The complete file image for `contents`; deterministic.
-pub fn encode(contents: &BakeContents, opts: WriteOptions) -> Result<Vec<u8>, FormatError> {
-    let meta = rkyv::to_bytes::<rancor::Error>(&contents.meta).map_err(ser_err(TAG_META))?;
-    let basis =
-        rkyv::to_bytes::<rancor::Error>(&contents.basis.basis).map_err(ser_err(TAG_BASIS))?;
-    let trees = RTrees {
-        levels: contents.basis.trees.clone(),
-    };
-    let trees = rkyv::to_bytes::<rancor::Error>(&trees).map_err(ser_err(TAG_RTREES))?;
-    let mut sections = vec![(TAG_META, meta), (TAG_BASIS, basis), (TAG_RTREES, trees)];
+/// A section's tag and how to serialise it.
+type LazySection<'c> = (
+    [u8; 4],
+    Box<dyn Fn() -> Result<AlignedVec, FormatError> + 'c>,
+);
+
+/// The sections of `contents`, in file order, each serialised only when asked.
+fn sections(contents: &BakeContents) -> Vec<LazySection<'_>> {
+    fn lazy<'c, T>(tag: [u8; 4], value: &'c T) -> LazySection<'c>
+    where
+        T: for<'a> rkyv::Serialize<
+            rkyv::api::high::HighSerializer<
+                AlignedVec,
+                rkyv::ser::allocator::ArenaHandle<'a>,
+                rancor::Error,
+            >,
+        >,
+    {
+        (
+            tag,
+            Box::new(move || rkyv::to_bytes::<rancor::Error>(value).map_err(ser_err(tag))),
+        )
+    }
+    let mut out: Vec<LazySection<'_>> = vec![
+        lazy(TAG_META, &contents.meta),
+        lazy(TAG_BASIS, &contents.basis.basis),
+        (
+            TAG_RTREES,
+            Box::new(|| {
+                let trees = RTrees {
+                    levels: contents.basis.trees.clone(),
+                };
+                rkyv::to_bytes::<rancor::Error>(&trees).map_err(ser_err(TAG_RTREES))
+            }),
+        ),
+    ];
     if let Some(t) = &contents.transport {
-        let tm = rkyv::to_bytes::<rancor::Error>(&t.meta).map_err(ser_err(TAG_TRANSPORT))?;
-        let links = rkyv::to_bytes::<rancor::Error>(&t.links).map_err(ser_err(TAG_LINKS))?;
-        sections.push((TAG_TRANSPORT, tm));
-        sections.push((TAG_LINKS, links));
+        out.push(lazy(TAG_TRANSPORT, &t.meta));
+        out.push(lazy(TAG_LINKS, &t.links));
         if let Some(r) = &t.report {
-            let bytes = rkyv::to_bytes::<rancor::Error>(r).map_err(ser_err(TAG_REPORT))?;
-            sections.push((TAG_REPORT, bytes));
+            out.push(lazy(TAG_REPORT, r));
         }
         if let Some(d) = &t.drop {
-            let bytes = rkyv::to_bytes::<rancor::Error>(d).map_err(ser_err(TAG_DROP))?;
-            sections.push((TAG_DROP, bytes));
+            out.push(lazy(TAG_DROP, d));
         }
         if let Some(b) = &t.bounces {
-            let bytes = rkyv::to_bytes::<rancor::Error>(b).map_err(ser_err(TAG_BOUNCES))?;
-            sections.push((TAG_BOUNCES, bytes));
+            out.push(lazy(TAG_BOUNCES, b));
         }
         if let Some(c) = &t.camera_check {
-            let bytes = rkyv::to_bytes::<rancor::Error>(c).map_err(ser_err(TAG_CAMERA_CHECK))?;
-            sections.push((TAG_CAMERA_CHECK, bytes));
+            out.push(lazy(TAG_CAMERA_CHECK, c));
         }
     }
-    if let Some(s) = &contents.shard {
-        let bytes = rkyv::to_bytes::<rancor::Error>(s).map_err(ser_err(TAG_SHARD))?;
-        sections.push((TAG_SHARD, bytes));
+    if let Some(sh) = &contents.shard {
+        out.push(lazy(TAG_SHARD, sh));
     }
     if let Some(f) = &contents.flat {
-        let bytes = rkyv::to_bytes::<rancor::Error>(f).map_err(ser_err(TAG_FLAT2))?;
-        sections.push((TAG_FLAT2, bytes));
+        out.push(lazy(TAG_FLAT2, f));
     }
-    let ins: Vec<SectionIn> = sections
-        .iter()
-        .map(|(tag, bytes)| SectionIn {
+    out
+}
+
+/// Writes the image of `contents` to `w` section by section ([`container::Encoder`]): one
+/// section's serialised bytes are held at a time, never the whole image. Returns the length.
+fn encode_to<W: std::io::Write + std::io::Seek>(
+    contents: &BakeContents,
+    opts: WriteOptions,
+    w: W,
+) -> Result<(W, u64), FormatError> {
+    let lazy = sections(contents);
+    let io = |e: std::io::Error| FormatError::Serialize {
+        tag: "file".into(),
+        detail: e.to_string(),
+    };
+    let mut enc = container::Encoder::new(w, lazy.len(), contents.input_key).map_err(io)?;
+    for (tag, serialise) in &lazy {
+        let bytes = serialise()?;
+        enc.add(&SectionIn {
             tag: *tag,
-            bytes,
+            bytes: &bytes,
             compress: opts.compress,
-        })
-        .collect();
-    container::encode(&ins, contents.input_key)
+        })?;
+    }
+    enc.finish().map_err(io)
+}
+
+/// The complete file image for `contents`; deterministic.
+pub fn encode(contents: &BakeContents, opts: WriteOptions) -> Result<Vec<u8>, FormatError> {
+    let (cursor, _) = encode_to(contents, opts, std::io::Cursor::new(Vec::new()))?;
+    Ok(cursor.into_inner())
 }
 
 /// Bytes each section of `contents` takes uncompressed, by tag (for statistics).
@@ -191,10 +231,24 @@ pub fn section_sizes(contents: &BakeContents) -> Result<Vec<([u8; 4], u64)>, For
 /// into place, so that an existing file is never left half-written: readers see the old file
 /// or the new one.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), FormatError> {
-    let io = |source| FormatError::Io {
+    write_atomic_with(path, |f| {
+        f.write_all(bytes).map_err(|source| io_err(path, source))
+    })
+}
+
+fn io_err(path: &Path, source: std::io::Error) -> FormatError {
+    FormatError::Io {
         path: path.to_path_buf(),
         source,
-    };
+    }
+}
+
+/// [`write_atomic`] with the contents written by `fill` into the temporary file; an error
+/// from `fill` removes the temporary file and leaves `path` as it was.
+fn write_atomic_with<T>(
+    path: &Path,
+    fill: impl FnOnce(&mut fs::File) -> Result<T, FormatError>,
+) -> Result<T, FormatError> {
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => PathBuf::from("."),
@@ -205,23 +259,27 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), FormatError> {
         .unwrap_or_else(|| "out".into());
     let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
     let result = (|| {
-        let mut f = fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
+        let mut f = fs::File::create(&tmp).map_err(|e| io_err(path, e))?;
+        let value = fill(&mut f)?;
+        f.sync_all().map_err(|e| io_err(path, e))?;
         drop(f);
-        fs::rename(&tmp, path)
+        fs::rename(&tmp, path).map_err(|e| io_err(path, e))?;
+        Ok(value)
     })();
     if result.is_err() {
         let _ = fs::remove_file(&tmp);
     }
-    result.map_err(io)
+    result
 }
 
-/// Encodes and writes `contents` atomically; returns the file size.
+/// Encodes and writes `contents` atomically, a section at a time; returns the file size.
 pub fn write(path: &Path, contents: &BakeContents, opts: WriteOptions) -> Result<u64, FormatError> {
-    let bytes = encode(contents, opts)?;
-    write_atomic(path, &bytes)?;
-    Ok(bytes.len() as u64)
+    write_atomic_with(path, |f| {
+        let w = std::io::BufWriter::new(f);
+        let (mut w, len) = encode_to(contents, opts, w)?;
+        w.flush().map_err(|e| io_err(path, e))?;
+        Ok(len)
+    })
 }
 
 enum Storage {
