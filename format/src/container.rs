@@ -106,7 +106,7 @@ pub fn encode(sections: &[SectionIn<'_>], input_key: u64) -> Result<Vec<u8>, For
     let mut out = std::io::Cursor::new(Vec::new());
     let mut enc = Encoder::new(&mut out, sections.len(), input_key).map_err(write_err)?;
     for s in sections {
-        enc.add(s)?;
+        enc.add(s).map_err(write_err)?;
     }
     enc.finish().map_err(write_err)?;
     Ok(out.into_inner())
@@ -153,22 +153,17 @@ impl<W: Write + Seek> Encoder<W> {
     }
 
     /// Appends one section (compressed when it asks), padded to the alignment. An error
-    /// names the section; more sections than announced are refused.
-    pub fn add(&mut self, s: &SectionIn<'_>) -> Result<(), FormatError> {
+    /// (the writer's, the compressor's, or more sections than announced) names the section.
+    pub fn add(&mut self, s: &SectionIn<'_>) -> std::io::Result<()> {
         let tag = String::from_utf8_lossy(&s.tag).into_owned();
-        let err = |detail: String| FormatError::Serialize {
-            tag: tag.clone(),
-            detail,
-        };
+        let err = |e: &dyn std::fmt::Display| std::io::Error::other(format!("section {tag}: {e}"));
         if self.entries.len() == self.sections {
-            return Err(err(format!(
-                "more than the {} sections announced",
-                self.sections
-            )));
+            let e = format!("more than the {} sections announced", self.sections);
+            return Err(err(&e));
         }
         let stored: std::borrow::Cow<[u8]> = if s.compress {
             zstd::bulk::compress(s.bytes, 9)
-                .map_err(|e| err(e.to_string()))?
+                .map_err(|e| err(&e))?
                 .into()
         } else {
             s.bytes.into()
@@ -176,7 +171,7 @@ impl<W: Write + Seek> Encoder<W> {
         let offset = self.len;
         let pad = align_up(offset + stored.len()) - offset - stored.len();
         for part in [&stored[..], &[0u8; ALIGN][..pad]] {
-            self.w.write_all(part).map_err(|e| err(e.to_string()))?;
+            self.w.write_all(part).map_err(|e| err(&e))?;
             self.payload.update(part);
         }
         self.len += stored.len() + pad;

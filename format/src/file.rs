@@ -187,32 +187,35 @@ fn sections(contents: &BakeContents) -> Vec<LazySection<'_>> {
 }
 
 /// Writes the image of `contents` to `w` section by section ([`container::Encoder`]): one
-/// section's serialised bytes are held at a time, never the whole image. Returns the length.
+/// section's serialised bytes are held at a time, never the whole image. Returns the length;
+/// `io` turns the writer's errors into the caller's.
 fn encode_to<W: std::io::Write + std::io::Seek>(
     contents: &BakeContents,
     opts: WriteOptions,
     w: W,
+    io: impl Fn(std::io::Error) -> FormatError,
 ) -> Result<(W, u64), FormatError> {
     let lazy = sections(contents);
-    let io = |e: std::io::Error| FormatError::Serialize {
-        tag: "file".into(),
-        detail: e.to_string(),
-    };
-    let mut enc = container::Encoder::new(w, lazy.len(), contents.input_key).map_err(io)?;
+    let mut enc = container::Encoder::new(w, lazy.len(), contents.input_key).map_err(&io)?;
     for (tag, serialise) in &lazy {
         let bytes = serialise()?;
         enc.add(&SectionIn {
             tag: *tag,
             bytes: &bytes,
             compress: opts.compress,
-        })?;
+        })
+        .map_err(&io)?;
     }
     enc.finish().map_err(io)
 }
 
 /// The complete file image for `contents`; deterministic.
 pub fn encode(contents: &BakeContents, opts: WriteOptions) -> Result<Vec<u8>, FormatError> {
-    let (cursor, _) = encode_to(contents, opts, std::io::Cursor::new(Vec::new()))?;
+    let io = |e: std::io::Error| FormatError::Serialize {
+        tag: "file".into(),
+        detail: e.to_string(),
+    };
+    let (cursor, _) = encode_to(contents, opts, std::io::Cursor::new(Vec::new()), io)?;
     Ok(cursor.into_inner())
 }
 
@@ -276,7 +279,8 @@ fn write_atomic_with<T>(
 pub fn write(path: &Path, contents: &BakeContents, opts: WriteOptions) -> Result<u64, FormatError> {
     write_atomic_with(path, |f| {
         let w = std::io::BufWriter::new(f);
-        let (mut w, len) = encode_to(contents, opts, w)?;
+        // A failed write (a full disk) names the file.
+        let (mut w, len) = encode_to(contents, opts, w, |e| io_err(path, e))?;
         w.flush().map_err(|e| io_err(path, e))?;
         Ok(len)
     })
