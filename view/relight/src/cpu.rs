@@ -352,7 +352,7 @@ impl<'a> CpuRelighter<'a> {
     /// Whether [`CpuRelighter::lagged_feedback`] saves work per frame with the current
     /// settings. With the bounce-light feedback it saves the feedback's own product (always).
     /// With the fine bounces from every sender point it saves the second read of the finer
-    /// receivers' links (22 bytes each: a slot and nine half floats) but writes `S e` apart
+    /// receivers' links ([`ReceiverLinks::link_bytes`] each: a slot and nine half floats) but writes `S e` apart
     /// from the frame's coefficients (36 bytes per point, counted twice: a written line is
     /// read first): it pays where the first outweighs the second. Measured (`view timings
     /// --feedback-lag on|off`, two threads): textured Sponza 87 MB against 11 MB, 22 ms lagged
@@ -373,7 +373,7 @@ impl<'a> CpuRelighter<'a> {
             return false;
         }
         let m = self.ib.basis.level_range(0).len();
-        22 * self.receiver_links.links_from(m) > 2 * LINK_DIM * 4 * n
+        self.receiver_links.link_bytes() * self.receiver_links.links_from(m) > 2 * LINK_DIM * 4 * n
     }
 
     /// Forgets the lagged bounce light: the next frame is computed exactly.

@@ -8,7 +8,7 @@ use mlt_format::links::{ArchivedLinks, LINK_DIM};
 /// `S` receiver-major, copied once from the stored sender-major half floats (section 3.3's
 /// `i = S e`, rearranged for the run time): each linked receiver gathers its senders' light,
 /// so receivers are independent and computed in parallel with the same bits for any thread
-/// count. The values stay half floats (22 bytes per link with the sender slot, against 40
+/// count. The values stay half floats (20 bytes per link with a 16-bit sender slot, against 40
 /// decoded): the product reads each link once per frame and is bound by memory traffic, and a
 /// half float's conversion to `f32` is exact, so the products are those of decoded values. On
 /// CPUs with AVX2 and F16C a link's values are converted, multiplied and summed eight and four
@@ -27,12 +27,64 @@ pub struct ReceiverLinks {
     /// `receiver_ids.len() + 1` offsets into `slots`/`values`.
     offsets: Vec<u32>,
     /// Sender slot of each link, ascending within a receiver.
-    slots: Vec<u32>,
+    slots: Slots,
     /// The (unscaled) link values, half-float bits.
     values: Vec<[u16; LINK_DIM]>,
     /// The first row of each parallel task of the products, ascending from 0, then the number
     /// of rows ([`task_starts`]).
     task_starts: Vec<u32>,
+}
+
+/// The sender slot of each link: 16 bits where every stored sender slot fits in them (2 of a
+/// link's 20 bytes instead of 4 of 22: the products are bound by reading the links), else 32.
+#[derive(Clone, Debug, PartialEq)]
+enum Slots {
+    Narrow(Vec<u16>),
+    Wide(Vec<u32>),
+}
+
+impl Default for Slots {
+    fn default() -> Slots {
+        Slots::Narrow(Vec::new())
+    }
+}
+
+impl Slots {
+    /// `slots` in 16 bits each where all fit, else as they are.
+    fn new(slots: Vec<u32>) -> Slots {
+        if slots.iter().all(|&s| s <= u16::MAX as u32) {
+            Slots::Narrow(slots.into_iter().map(|s| s as u16).collect())
+        } else {
+            Slots::Wide(slots)
+        }
+    }
+
+    /// Heap bytes held.
+    fn bytes(&self) -> usize {
+        match self {
+            Slots::Narrow(s) => 2 * s.len(),
+            Slots::Wide(s) => 4 * s.len(),
+        }
+    }
+}
+
+/// A sender slot as stored ([`Slots`]).
+trait Slot: Copy {
+    fn index(self) -> usize;
+}
+
+impl Slot for u16 {
+    #[inline(always)]
+    fn index(self) -> usize {
+        self as usize
+    }
+}
+
+impl Slot for u32 {
+    #[inline(always)]
+    fn index(self) -> usize {
+        self as usize
+    }
 }
 
 /// The sender weights of a product: those of most rows, those of the rows of receivers
@@ -134,7 +186,7 @@ impl ReceiverLinks {
             receiver_ids,
             task_starts: task_starts(&offsets),
             offsets,
-            slots,
+            slots: Slots::new(slots),
             values,
         }
     }
@@ -144,14 +196,24 @@ impl ReceiverLinks {
         self.values.len()
     }
 
+    /// Bytes a product reads per link: its slot and its nine half floats (20, or 22 where the
+    /// slots take 32 bits).
+    pub fn link_bytes(&self) -> usize {
+        let slot = match self.slots {
+            Slots::Narrow(_) => 2,
+            Slots::Wide(_) => 4,
+        };
+        slot + 2 * LINK_DIM
+    }
+
     /// Heap bytes held.
     pub fn bytes(&self) -> usize {
         4 * (self.sender_ids.len()
             + self.scales.len()
             + self.receiver_ids.len()
             + self.offsets.len()
-            + self.slots.len()
             + self.task_starts.len())
+            + self.slots.bytes()
             + 2 * LINK_DIM * self.values.len()
     }
 
@@ -429,7 +491,7 @@ impl ReceiverLinks {
             let w = if point < m { w_first } else { w_rest };
             let r = point - first;
             let (a, b) = (self.offsets[q] as usize, self.offsets[q + 1] as usize);
-            let acc = row_sum::<F16C>(&self.slots[a..b], &self.values[a..b], w);
+            let acc = self.row_sum::<F16C>(a..b, w);
             let o = &mut out[r * LINK_DIM..(r + 1) * LINK_DIM];
             if ADD {
                 for d in 0..LINK_DIM {
@@ -478,17 +540,47 @@ impl ReceiverLinks {
             let point = self.receiver_ids[q] as usize;
             let r = point - first;
             let (a, b) = (self.offsets[q] as usize, self.offsets[q + 1] as usize);
-            let (slots, values) = (&self.slots[a..b], &self.values[a..b]);
             let (acc, acc_y) = if point < m {
-                (row_sum::<F16C>(slots, values, w), [0.0; LINK_DIM])
+                (self.row_sum::<F16C>(a..b, w), [0.0; LINK_DIM])
             } else {
-                row_sums::<F16C>(slots, values, w, w_y)
+                self.row_sums::<F16C>(a..b, w, w_y)
             };
             out_se[r * LINK_DIM..(r + 1) * LINK_DIM].copy_from_slice(&acc);
             let o = &mut out_i[r * LINK_DIM..(r + 1) * LINK_DIM];
             for d in 0..LINK_DIM {
                 o[d] = acc[d] + acc_y[d];
             }
+        }
+    }
+}
+
+impl ReceiverLinks {
+    /// [`row_sum`] of links `k` (a row's), whatever the width of their slots.
+    #[inline(always)]
+    fn row_sum<const F16C: bool>(
+        &self,
+        k: std::ops::Range<usize>,
+        w: &[[f32; LINK_DIM]],
+    ) -> [f32; LINK_DIM] {
+        let values = &self.values[k.clone()];
+        match &self.slots {
+            Slots::Narrow(s) => row_sum::<F16C, u16>(&s[k], values, w),
+            Slots::Wide(s) => row_sum::<F16C, u32>(&s[k], values, w),
+        }
+    }
+
+    /// [`row_sums`] of links `k` (a row's), whatever the width of their slots.
+    #[inline(always)]
+    fn row_sums<const F16C: bool>(
+        &self,
+        k: std::ops::Range<usize>,
+        w: &[[f32; LINK_DIM]],
+        w_y: &[[f32; LINK_DIM]],
+    ) -> ([f32; LINK_DIM], [f32; LINK_DIM]) {
+        let values = &self.values[k.clone()];
+        match &self.slots {
+            Slots::Narrow(s) => row_sums::<F16C, u16>(&s[k], values, w, w_y),
+            Slots::Wide(s) => row_sums::<F16C, u32>(&s[k], values, w, w_y),
         }
     }
 }
@@ -504,8 +596,8 @@ type DualWeights<'a> = (&'a [[f32; LINK_DIM]], &'a [[f32; LINK_DIM]], usize);
 /// same bits (the half floats' conversion is exact, and a vector lane's product and sum are
 /// the scalar's).
 #[inline(always)]
-fn row_sum<const F16C: bool>(
-    slots: &[u32],
+fn row_sum<const F16C: bool, S: Slot>(
+    slots: &[S],
     values: &[[u16; LINK_DIM]],
     w: &[[f32; LINK_DIM]],
 ) -> [f32; LINK_DIM] {
@@ -517,7 +609,7 @@ fn row_sum<const F16C: bool>(
     }
     let mut acc = [0.0f32; LINK_DIM];
     for (&slot, v) in slots.iter().zip(values) {
-        let (ws, v) = (&w[slot as usize], decode(v));
+        let (ws, v) = (&w[slot.index()], decode(v));
         for d in 0..LINK_DIM {
             acc[d] += ws[d] * v[d];
         }
@@ -527,8 +619,8 @@ fn row_sum<const F16C: bool>(
 
 /// [`row_sum`] of the same links over two weight vectors at once (one read of the links).
 #[inline(always)]
-fn row_sums<const F16C: bool>(
-    slots: &[u32],
+fn row_sums<const F16C: bool, S: Slot>(
+    slots: &[S],
     values: &[[u16; LINK_DIM]],
     w: &[[f32; LINK_DIM]],
     w_y: &[[f32; LINK_DIM]],
@@ -540,7 +632,7 @@ fn row_sums<const F16C: bool>(
     }
     let (mut acc, mut acc_y) = ([0.0f32; LINK_DIM], [0.0f32; LINK_DIM]);
     for (&slot, v) in slots.iter().zip(values) {
-        let (ws, wy, v) = (&w[slot as usize], &w_y[slot as usize], decode(v));
+        let (ws, wy, v) = (&w[slot.index()], &w_y[slot.index()], decode(v));
         for d in 0..LINK_DIM {
             acc[d] += ws[d] * v[d];
             acc_y[d] += wy[d] * v[d];
@@ -603,15 +695,15 @@ fn unpack(acc8: std::arch::x86_64::__m256, acc4: std::arch::x86_64::__m128) -> [
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,f16c")]
 #[inline]
-fn row_sum_f16c(
-    slots: &[u32],
+fn row_sum_f16c<S: Slot>(
+    slots: &[S],
     values: &[[u16; LINK_DIM]],
     w: &[[f32; LINK_DIM]],
 ) -> [f32; LINK_DIM] {
     use std::arch::x86_64::*;
     let (mut acc8, mut acc9) = (_mm256_setzero_ps(), _mm_setzero_ps());
     for (&slot, v) in slots.iter().zip(values) {
-        let (v8, v9, w8, w9) = lanes(v, &w[slot as usize]);
+        let (v8, v9, w8, w9) = lanes(v, &w[slot.index()]);
         acc8 = _mm256_add_ps(acc8, _mm256_mul_ps(w8, v8));
         acc9 = _mm_add_ps(acc9, _mm_mul_ps(w9, v9));
     }
@@ -621,8 +713,8 @@ fn row_sum_f16c(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,f16c")]
 #[inline]
-fn row_sums_f16c(
-    slots: &[u32],
+fn row_sums_f16c<S: Slot>(
+    slots: &[S],
     values: &[[u16; LINK_DIM]],
     w: &[[f32; LINK_DIM]],
     w_y: &[[f32; LINK_DIM]],
@@ -631,8 +723,8 @@ fn row_sums_f16c(
     let (mut acc8, mut acc9) = (_mm256_setzero_ps(), _mm_setzero_ps());
     let (mut y8, mut y9) = (_mm256_setzero_ps(), _mm_setzero_ps());
     for (&slot, v) in slots.iter().zip(values) {
-        let (v8, v9, w8, w9) = lanes(v, &w[slot as usize]);
-        let wy = &w_y[slot as usize];
+        let (v8, v9, w8, w9) = lanes(v, &w[slot.index()]);
+        let wy = &w_y[slot.index()];
         // SAFETY: `wy` holds 9 `f32`: the 32 bytes from its start and the 16 from its sixth
         // element are in bounds.
         let (wy8, wy4) = unsafe {
@@ -734,6 +826,41 @@ mod tests {
     }
 
     #[test]
+    fn slots_take_16_bits_where_all_fit_and_the_products_keep_their_bits_either_way() {
+        assert_eq!(
+            Slots::new(vec![0, 7, 65535]),
+            Slots::Narrow(vec![0, 7, 65535])
+        );
+        assert_eq!(Slots::new(vec![0, 65536]), Slots::Wide(vec![0, 65536]));
+        let bytes = sample_bytes();
+        let rl = ReceiverLinks::build(validated(&bytes));
+        let Slots::Narrow(narrow) = &rl.slots else {
+            panic!("six senders take 16-bit slots");
+        };
+        let wide = ReceiverLinks {
+            slots: Slots::Wide(narrow.iter().map(|&s| s as u32).collect()),
+            ..rl.clone()
+        };
+        assert_eq!(wide.bytes(), rl.bytes() + 2 * rl.link_count());
+        assert_eq!((rl.link_bytes(), wide.link_bytes()), (20, 22));
+        let e = sample_emission();
+        let y: Vec<f32> = e.iter().map(|v| 0.5 - v).collect();
+        for links in [&rl, &wide] {
+            let mut want = vec![0.0f32; 14 * 9];
+            validated(&bytes).apply(&e, 0.0, &mut want);
+            let mut got = vec![f32::NAN; 14 * 9];
+            links.apply(&e, 0.0, &mut got);
+            assert_eq!(bits(&got), bits(&want));
+        }
+        let dual = |links: &ReceiverLinks| {
+            let (mut se, mut i) = (vec![f32::NAN; 14 * 9], vec![f32::NAN; 14 * 9]);
+            links.apply_with_added_from(&e, 0.0, &y, 0.0, 4, &mut se, &mut i);
+            (bits(&se), bits(&i))
+        };
+        assert_eq!(dual(&rl), dual(&wide));
+    }
+
+    #[test]
     fn the_f16c_row_sums_give_the_bits_of_the_scalar_ones() {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2")
@@ -764,14 +891,14 @@ mod tests {
                     .chunks_exact(LINK_DIM)
                     .map(|c| std::array::from_fn(|d| c[d]))
                     .collect();
-                let slots: Vec<u32> = (0..values.len()).map(|k| (k * 5 % 7) as u32).collect();
+                let slots: Vec<u16> = (0..values.len()).map(|k| (k * 5 % 7) as u16).collect();
                 for k in (0..values.len() - 3).step_by(3) {
                     let (sl, vl) = (&slots[k..k + 3], &values[k..k + 3]);
                     // SAFETY: this CPU has AVX2 and F16C (checked above).
                     let (fast, fast2) =
                         unsafe { (row_sum_f16c(sl, vl, &w), row_sums_f16c(sl, vl, &w, &w_y)) };
-                    let slow2 = row_sums::<false>(sl, vl, &w, &w_y);
-                    assert!(same(fast, row_sum::<false>(sl, vl, &w)), "{fast:?}");
+                    let slow2 = row_sums::<false, _>(sl, vl, &w, &w_y);
+                    assert!(same(fast, row_sum::<false, _>(sl, vl, &w)), "{fast:?}");
                     assert!(
                         same(fast2.0, slow2.0) && same(fast2.1, slow2.1),
                         "{fast2:?}"
