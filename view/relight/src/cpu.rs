@@ -352,9 +352,9 @@ impl<'a> CpuRelighter<'a> {
     /// Whether [`CpuRelighter::lagged_feedback`] saves work per frame with the current
     /// settings. With the bounce-light feedback it saves the feedback's own product (always).
     /// With the fine bounces from every sender point it saves the second read of the finer
-    /// receivers' links ([`ReceiverLinks::link_bytes`] each: a slot and nine half floats) but writes `S e` apart
-    /// from the frame's coefficients (36 bytes per point, counted twice: a written line is
-    /// read first): it pays where the first outweighs the second. Measured (`view timings
+    /// receivers' links ([`ReceiverLinks::link_bytes`] each: a slot and nine half floats) but
+    /// writes `S e` apart from the frame's coefficients (36 bytes per point, counted twice: a
+    /// written line is read first): it pays where the first outweighs the second. Measured (`view timings
     /// --feedback-lag on|off`, two threads): textured Sponza 87 MB against 11 MB, 22 ms lagged
     /// against 27 ms; the built-in Cornell box 6 MB against 26 MB, 8.5-8.8 ms against 7.4-7.6;
     /// its bright variant 15 MB against 26 MB, 9.7-10.2 ms against 8.0-8.3. False where nothing

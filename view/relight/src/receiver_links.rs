@@ -52,19 +52,27 @@ impl Default for Slots {
 impl Slots {
     /// `slots` in 16 bits each where all fit, else as they are.
     fn new(slots: Vec<u32>) -> Slots {
-        if slots.iter().all(|&s| s <= u16::MAX as u32) {
-            Slots::Narrow(slots.into_iter().map(|s| s as u16).collect())
-        } else {
-            Slots::Wide(slots)
+        match slots.iter().map(|&s| u16::try_from(s)).collect() {
+            Ok(narrow) => Slots::Narrow(narrow),
+            Err(_) => Slots::Wide(slots),
+        }
+    }
+
+    /// Bytes per slot.
+    fn width(&self) -> usize {
+        match self {
+            Slots::Narrow(_) => 2,
+            Slots::Wide(_) => 4,
         }
     }
 
     /// Heap bytes held.
     fn bytes(&self) -> usize {
-        match self {
-            Slots::Narrow(s) => 2 * s.len(),
-            Slots::Wide(s) => 4 * s.len(),
-        }
+        let len = match self {
+            Slots::Narrow(s) => s.len(),
+            Slots::Wide(s) => s.len(),
+        };
+        self.width() * len
     }
 }
 
@@ -199,11 +207,7 @@ impl ReceiverLinks {
     /// Bytes a product reads per link: its slot and its nine half floats (20, or 22 where the
     /// slots take 32 bits).
     pub fn link_bytes(&self) -> usize {
-        let slot = match self.slots {
-            Slots::Narrow(_) => 2,
-            Slots::Wide(_) => 4,
-        };
-        slot + 2 * LINK_DIM
+        self.slots.width() + 2 * LINK_DIM
     }
 
     /// Heap bytes held.
@@ -552,9 +556,7 @@ impl ReceiverLinks {
             }
         }
     }
-}
 
-impl ReceiverLinks {
     /// [`row_sum`] of links `k` (a row's), whatever the width of their slots.
     #[inline(always)]
     fn row_sum<const F16C: bool>(
