@@ -84,6 +84,10 @@ pub struct LoadStats {
     pub pull_push_bytes: usize,
     /// Heap bytes of the receiver-major decoded links.
     pub links_bytes: usize,
+    /// Links of the receiver-major rows summed eight rows at a time (the nearly dense
+    /// coarsest rows, [`ReceiverLinks::grouped_links`]), of all the links.
+    pub links_grouped: usize,
+    pub links_total: usize,
     /// Entries of the bounce-light feedback's reconstruction at the sender points, and their
     /// heap bytes ([`BounceFeedbackOp`]; it applies the level-0 rows of the links above).
     pub feedback_entries: usize,
@@ -276,6 +280,8 @@ impl<'a> CpuRelighter<'a> {
             sharpen_bytes: sharpen_op.as_ref().map_or(0, SharpenOp::bytes),
             pull_push_bytes: pull_push.bytes(),
             links_bytes: receiver_links.bytes(),
+            links_grouped: receiver_links.grouped_links(),
+            links_total: receiver_links.link_count(),
             feedback_entries: feedback.entries(),
             feedback_bytes: feedback.bytes(),
             direct_points: sample_used.iter().filter(|u| **u).count(),
