@@ -12,7 +12,8 @@ use mlt_format::links::{ArchivedLinks, LINK_DIM};
 /// decoded): the product reads each link once per frame and is bound by memory traffic, and a
 /// half float's conversion to `f32` is exact, so the products are those of decoded values. On
 /// CPUs with AVX2 and F16C a link's values are converted, multiplied and summed eight and four
-/// at a time (`row_sum_f16c`).
+/// at a time (`row_sum_f16c`). The first rows, nearly dense (the coarsest receivers'), are held
+/// and summed eight rows at a time instead (`Groups`), with the same bits.
 ///
 /// [`apply`](Self::apply) gives the same bits as [`ArchivedLinks::apply`] into a zeroed `i`:
 /// each receiver sums the same products (`(e_s * scale_s) * value`) in ascending sender order.
