@@ -183,15 +183,20 @@ impl Groups {
         4 * self.offsets.len() + self.slots.bytes() + 2 * GROUP * LINK_DIM * self.values.len()
     }
 
-    /// The sums of group `g`'s eight rows over the weights `w`, each row's the bits of
-    /// [`row_sum`] over its own links.
+    /// The sums of group `g`'s eight rows over the weights `pick(&w[slot])`, each row's the
+    /// bits of [`row_sum`] over its own links.
     #[inline(always)]
-    fn sums<const F16C: bool>(&self, g: usize, w: &[[f32; LINK_DIM]]) -> [[f32; LINK_DIM]; GROUP] {
+    fn sums<const F16C: bool, W>(
+        &self,
+        g: usize,
+        w: &[W],
+        pick: impl Fn(&W) -> &[f32; LINK_DIM],
+    ) -> [[f32; LINK_DIM]; GROUP] {
         let k = self.offsets[g] as usize..self.offsets[g + 1] as usize;
         let values = &self.values[k.clone()];
         match &self.slots {
-            Slots::Narrow(s) => group_sums::<F16C, u16>(&s[k], values, w),
-            Slots::Wide(s) => group_sums::<F16C, u32>(&s[k], values, w),
+            Slots::Narrow(s) => group_sums::<F16C, u16, W>(&s[k], values, w, pick),
+            Slots::Wide(s) => group_sums::<F16C, u32, W>(&s[k], values, w, pick),
         }
     }
 }
@@ -440,7 +445,7 @@ impl ReceiverLinks {
         assert!(se.len() == n * LINK_DIM && i.len() == n * LINK_DIM);
         let mut used = 0;
         let w = self.sender_weights(e, threshold, &mut used);
-        let w_y = self.sender_weights(y, threshold_y, &mut 0);
+        let both = pair_weights(&w, &self.sender_weights(y, threshold_y, &mut 0));
         let rows = self.receiver_ids.len();
         let parts = self.chunk_parts(rows, n, se).into_iter();
         let parts_i = self.chunk_parts(rows, n, i).into_iter();
@@ -455,10 +460,10 @@ impl ReceiverLinks {
                 if f16c {
                     // SAFETY: this CPU has AVX2 and F16C (checked above), the only requirement
                     // for calling a function compiled with them.
-                    unsafe { self.dual_chunk_f16c((&w, &w_y, m), c, rows, first, out_se, out_i) };
+                    unsafe { self.dual_chunk_f16c((&w, &both, m), c, rows, first, out_se, out_i) };
                     return;
                 }
-                self.dual_chunk::<false>((&w, &w_y, m), c, rows, first, out_se, out_i);
+                self.dual_chunk::<false>((&w, &both, m), c, rows, first, out_se, out_i);
             });
         used
     }
@@ -635,7 +640,7 @@ impl ReceiverLinks {
                 if !points().any(takes) {
                     continue;
                 }
-                let sums = self.groups.sums::<F16C>(q / GROUP, w);
+                let sums = self.groups.sums::<F16C, _>(q / GROUP, w, |w| w);
                 for (j, point) in points().enumerate() {
                     if takes(point) {
                         write(out, point - first, &sums[j]);
@@ -671,14 +676,16 @@ impl ReceiverLinks {
     }
 
     /// The receivers of chunk `c` for [`ReceiverLinks::apply_with_added_from`]: `out_se` gets
-    /// each row's sum over the weights `w.0`, `out_i` that sum plus, for receivers from `w.2`
-    /// on, the sum over the weights `w.1` of the same links (formed apart, then added). Both
+    /// each row's sum over the weights of `e` (`w.0`, or the first of each pair `w.1` in the
+    /// rows that read both), `out_i` that sum plus, for receivers from `w.2` on, the sum over
+    /// the weights of `y` (the second of each pair) of the same links (formed apart, then
+    /// added). Both
     /// start at point `first` and are overwritten. `F16C` as in [`ReceiverLinks::chunk`]
     /// ([`row_sums_f16c`]).
     #[inline(always)]
     fn dual_chunk<const F16C: bool>(
         &self,
-        (w, w_y, m): DualWeights<'_>,
+        (w, both, m): DualWeights<'_>,
         c: usize,
         rows: usize,
         first: usize,
@@ -700,11 +707,11 @@ impl ReceiverLinks {
         // The grouped rows (as in `chunk`): `S e` for all, `S y` where a row from `m` on is.
         while q < qs.end.min(self.groups.rows) {
             let group = q..(q + GROUP).min(qs.end);
-            let sums = self.groups.sums::<F16C>(q / GROUP, w);
+            let sums = self.groups.sums::<F16C, _>(q / GROUP, w, |w| w);
             let sums_y = group
                 .clone()
                 .any(|q| self.receiver_ids[q] as usize >= m)
-                .then(|| self.groups.sums::<F16C>(q / GROUP, w_y));
+                .then(|| self.groups.sums::<F16C, _>(q / GROUP, both, |b| &b[1]));
             for (j, q) in group.enumerate() {
                 let point = self.receiver_ids[q] as usize;
                 let zero = [0.0; LINK_DIM];
@@ -722,7 +729,7 @@ impl ReceiverLinks {
             let (acc, acc_y) = if point < m {
                 (self.row_sum::<F16C>(k, w), [0.0; LINK_DIM])
             } else {
-                self.row_sums::<F16C>(k, w, w_y)
+                self.row_sums::<F16C>(k, both)
             };
             write(point, &acc, &acc_y);
         }
@@ -754,21 +761,30 @@ impl ReceiverLinks {
     fn row_sums<const F16C: bool>(
         &self,
         k: std::ops::Range<usize>,
-        w: &[[f32; LINK_DIM]],
-        w_y: &[[f32; LINK_DIM]],
+        both: &[Pair],
     ) -> ([f32; LINK_DIM], [f32; LINK_DIM]) {
         let values = &self.values[k.clone()];
         match &self.slots {
-            Slots::Narrow(s) => row_sums::<F16C, u16>(&s[k], values, w, w_y),
-            Slots::Wide(s) => row_sums::<F16C, u32>(&s[k], values, w, w_y),
+            Slots::Narrow(s) => row_sums::<F16C, u16>(&s[k], values, both),
+            Slots::Wide(s) => row_sums::<F16C, u32>(&s[k], values, both),
         }
     }
 }
 
-/// The weights of [`ReceiverLinks::dual_chunk`]: per sender slot those of `e`, those of `y`,
-/// and the first receiver `y` reaches. (Kept apart: the level-0 rows, most of the links in a
-/// closed room, read only the first, and twice the footprint would leave the cache.)
-type DualWeights<'a> = (&'a [[f32; LINK_DIM]], &'a [[f32; LINK_DIM]], usize);
+/// The weights of [`ReceiverLinks::dual_chunk`]: per sender slot those of `e`, those of `e`
+/// and `y` side by side ([`Pair`]), and the first receiver `y` reaches. (Those of `e` also
+/// apart: the level-0 rows, most of the links in a closed room, read only them, and twice the
+/// footprint would leave the cache.)
+type DualWeights<'a> = (&'a [[f32; LINK_DIM]], &'a [Pair], usize);
+
+/// A sender's weights for two vectors side by side (72 bytes): a link of a row that sums over
+/// both reads them from one place instead of two arrays.
+type Pair = [[f32; LINK_DIM]; 2];
+
+/// The weights `w` and `w_y` of each sender side by side.
+fn pair_weights(w: &[[f32; LINK_DIM]], w_y: &[[f32; LINK_DIM]]) -> Vec<Pair> {
+    w.iter().zip(w_y).map(|(&a, &b)| [a, b]).collect()
+}
 
 /// One row's sum `sum_k w[slot_k] * value_k`, element by element in link order, each term a
 /// product then a sum in `f32` (no fused multiply-add). With `F16C` (set only in code compiled
@@ -802,17 +818,17 @@ fn row_sum<const F16C: bool, S: Slot>(
 fn row_sums<const F16C: bool, S: Slot>(
     slots: &[S],
     values: &[[u16; LINK_DIM]],
-    w: &[[f32; LINK_DIM]],
-    w_y: &[[f32; LINK_DIM]],
+    both: &[Pair],
 ) -> ([f32; LINK_DIM], [f32; LINK_DIM]) {
     #[cfg(target_arch = "x86_64")]
     if F16C {
         // SAFETY: as in `row_sum`.
-        return unsafe { row_sums_f16c(slots, values, w, w_y) };
+        return unsafe { row_sums_f16c(slots, values, both) };
     }
     let (mut acc, mut acc_y) = ([0.0f32; LINK_DIM], [0.0f32; LINK_DIM]);
     for (&slot, v) in slots.iter().zip(values) {
-        let (ws, wy, v) = (&w[slot.index()], &w_y[slot.index()], decode(v));
+        let [ws, wy] = &both[slot.index()];
+        let v = decode(v);
         for d in 0..LINK_DIM {
             acc[d] += ws[d] * v[d];
             acc_y[d] += wy[d] * v[d];
@@ -826,19 +842,20 @@ fn row_sums<const F16C: bool, S: Slot>(
 /// gets one product then one sum in `f32`, in ascending sender order, as in [`row_sum`]. With
 /// `F16C` (as in `row_sum`) by [`group_sums_f16c`]: the same bits.
 #[inline(always)]
-fn group_sums<const F16C: bool, S: Slot>(
+fn group_sums<const F16C: bool, S: Slot, W>(
     slots: &[S],
     values: &[[u16; GROUP * LINK_DIM]],
-    w: &[[f32; LINK_DIM]],
+    w: &[W],
+    pick: impl Fn(&W) -> &[f32; LINK_DIM],
 ) -> [[f32; LINK_DIM]; GROUP] {
     #[cfg(target_arch = "x86_64")]
     if F16C {
         // SAFETY: as in `row_sum`.
-        return unsafe { group_sums_f16c(slots, values, w) };
+        return unsafe { group_sums_f16c(slots, values, w, pick) };
     }
     let mut acc = [[0.0f32; LINK_DIM]; GROUP];
     for (&slot, v) in slots.iter().zip(values) {
-        let ws = &w[slot.index()];
+        let ws = pick(&w[slot.index()]);
         for d in 0..LINK_DIM {
             for j in 0..GROUP {
                 acc[j][d] += ws[d] * f16::from_bits(v[d * GROUP + j]).to_f32();
@@ -853,15 +870,16 @@ fn group_sums<const F16C: bool, S: Slot>(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,f16c")]
 #[inline]
-fn group_sums_f16c<S: Slot>(
+fn group_sums_f16c<S: Slot, W>(
     slots: &[S],
     values: &[[u16; GROUP * LINK_DIM]],
-    w: &[[f32; LINK_DIM]],
+    w: &[W],
+    pick: impl Fn(&W) -> &[f32; LINK_DIM],
 ) -> [[f32; LINK_DIM]; GROUP] {
     use std::arch::x86_64::*;
     let mut acc = [_mm256_setzero_ps(); LINK_DIM];
     for (&slot, v) in slots.iter().zip(values) {
-        let ws = &w[slot.index()];
+        let ws = pick(&w[slot.index()]);
         for d in 0..LINK_DIM {
             // SAFETY: `v` holds 72 `u16`: the 16 bytes from element `8 d` (d < 9) are in
             // bounds (an unaligned load).
@@ -953,15 +971,14 @@ fn row_sum_f16c<S: Slot>(
 fn row_sums_f16c<S: Slot>(
     slots: &[S],
     values: &[[u16; LINK_DIM]],
-    w: &[[f32; LINK_DIM]],
-    w_y: &[[f32; LINK_DIM]],
+    both: &[Pair],
 ) -> ([f32; LINK_DIM], [f32; LINK_DIM]) {
     use std::arch::x86_64::*;
     let (mut acc8, mut acc9) = (_mm256_setzero_ps(), _mm_setzero_ps());
     let (mut y8, mut y9) = (_mm256_setzero_ps(), _mm_setzero_ps());
     for (&slot, v) in slots.iter().zip(values) {
-        let (v8, v9, w8, w9) = lanes(v, &w[slot.index()]);
-        let wy = &w_y[slot.index()];
+        let [w, wy] = &both[slot.index()];
+        let (v8, v9, w8, w9) = lanes(v, w);
         // SAFETY: `wy` holds 9 `f32`: the 32 bytes from its start and the 16 from its sixth
         // element are in bounds.
         let (wy8, wy4) = unsafe {
@@ -1132,7 +1149,8 @@ mod tests {
                     })
                     .collect()
             };
-            let (w, w_y) = (weights(0.0), weights(1.0));
+            let w = weights(0.0);
+            let both = pair_weights(&w, &weights(1.0));
             // Overflowing sums may give NaNs, whose payloads depend on operand order.
             let same = |a: [f32; LINK_DIM], b: [f32; LINK_DIM]| {
                 a.iter()
@@ -1149,8 +1167,8 @@ mod tests {
                     let (sl, vl) = (&slots[k..k + 3], &values[k..k + 3]);
                     // SAFETY: this CPU has AVX2 and F16C (checked above).
                     let (fast, fast2) =
-                        unsafe { (row_sum_f16c(sl, vl, &w), row_sums_f16c(sl, vl, &w, &w_y)) };
-                    let slow2 = row_sums::<false, _>(sl, vl, &w, &w_y);
+                        unsafe { (row_sum_f16c(sl, vl, &w), row_sums_f16c(sl, vl, &both)) };
+                    let slow2 = row_sums::<false, _>(sl, vl, &both);
                     assert!(same(fast, row_sum::<false, _>(sl, vl, &w)), "{fast:?}");
                     assert!(
                         same(fast2.0, slow2.0) && same(fast2.1, slow2.1),
@@ -1181,11 +1199,11 @@ mod tests {
                 .enumerate()
                 .map(|(u, c)| std::array::from_fn(|k| if present(u, k % GROUP) { c[k] } else { 0 }))
                 .collect();
-            let slow = group_sums::<false, u16>(&slots, &values, &w);
+            let slow = group_sums::<false, u16, _>(&slots, &values, &w, |w| w);
             #[cfg(target_arch = "x86_64")]
             if has_f16c_lanes() {
                 // SAFETY: this CPU has AVX2 and F16C (checked).
-                let fast = unsafe { group_sums_f16c(&slots, &values, &w) };
+                let fast = unsafe { group_sums_f16c(&slots, &values, &w, |w| w) };
                 assert_eq!(
                     fast.map(|r| r.map(f32::to_bits)),
                     slow.map(|r| r.map(f32::to_bits))
@@ -1275,15 +1293,15 @@ mod tests {
                 break;
             }
             let w = rl.sender_weights(&e, 0.0, &mut 0);
-            let w_y = rl.sender_weights(&y, 0.0, &mut 0);
+            let both = pair_weights(&w, &rl.sender_weights(&y, 0.0, &mut 0));
             let rows = rl.receiver_ids.len();
             let run = |f16c: bool| {
                 let (mut se, mut i) = (vec![0.0f32; 14 * 9], vec![0.0f32; 14 * 9]);
                 if f16c {
                     // SAFETY: the CPU has AVX2 and F16C (checked above).
-                    unsafe { rl.dual_chunk_f16c((&w, &w_y, 5), 0, rows, 0, &mut se, &mut i) };
+                    unsafe { rl.dual_chunk_f16c((&w, &both, 5), 0, rows, 0, &mut se, &mut i) };
                 } else {
-                    rl.dual_chunk::<false>((&w, &w_y, 5), 0, rows, 0, &mut se, &mut i);
+                    rl.dual_chunk::<false>((&w, &both, 5), 0, rows, 0, &mut se, &mut i);
                 }
                 (bits(&se), bits(&i))
             };
