@@ -45,6 +45,8 @@ use rayon::prelude::*;
 
 use crate::fine_bounce::{along_normal, level0_emission, FineBounceOp};
 use crate::pull_push_op::PullPushOp;
+#[cfg(target_arch = "x86_64")]
+use crate::receiver_links::unpack;
 use crate::receiver_links::ReceiverLinks;
 
 /// Sender points per parallel task of the reconstruction.
@@ -229,8 +231,8 @@ fn reconstruct(columns: &[u32], weights: &[f32], v: &[f32]) -> [f32; LINK_DIM] {
 }
 
 /// [`reconstruct`] with AVX2: elements 0-7 and 5-8 of each point's nine floats multiplied and
-/// added at once (separate products and sums, so each element's bits are the scalar loop's;
-/// elements 5-7 are summed twice and taken from the first).
+/// added at once (separate products and sums, so each element's bits are the scalar loop's),
+/// then unpacked as the links' products are ([`unpack`]).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn reconstruct_avx2(columns: &[u32], weights: &[f32], v: &[f32]) -> [f32; LINK_DIM] {
@@ -249,15 +251,7 @@ fn reconstruct_avx2(columns: &[u32], weights: &[f32], v: &[f32]) -> [f32; LINK_D
         acc8 = _mm256_add_ps(acc8, _mm256_mul_ps(_mm256_set1_ps(w), v8));
         acc4 = _mm_add_ps(acc4, _mm_mul_ps(_mm_set1_ps(w), v4));
     }
-    let mut out = [0.0f32; LINK_DIM];
-    let mut last = [0.0f32; 4];
-    // SAFETY: `out` holds 9 `f32` and `last` 4: the 32 and 16 bytes stored are in bounds.
-    unsafe {
-        _mm256_storeu_ps(out.as_mut_ptr(), acc8);
-        _mm_storeu_ps(last.as_mut_ptr(), acc4);
-    }
-    out[8] = last[3];
-    out
+    unpack(acc8, acc4)
 }
 
 #[cfg(test)]

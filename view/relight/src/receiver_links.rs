@@ -26,11 +26,9 @@ pub struct ReceiverLinks {
     /// Receivers with at least one link, ascending.
     receiver_ids: Vec<u32>,
     /// `receiver_ids.len() + 1` offsets of each row's links (those of the grouped rows
-    /// included): the rows from `groups.rows` on hold theirs at `offsets[q] - link_base` in
-    /// `slots`/`values`.
+    /// included): the rows from `groups.rows` on hold theirs at `offsets[q] -
+    /// offsets[groups.rows]` in `slots`/`values` (the grouped rows' links are in `groups`).
     offsets: Vec<u32>,
-    /// `offsets[groups.rows]`: the links of the grouped rows, held in `groups` instead.
-    link_base: u32,
     /// The first rows, nearly dense, eight at a time ([`Groups`]).
     groups: Groups,
     /// Sender slot of each link of the other rows, ascending within a receiver.
@@ -308,8 +306,12 @@ impl ReceiverLinks {
         let mut offsets: Vec<u32> = receiver_ids.iter().map(|&r| count[r as usize]).collect();
         offsets.push(total as u32);
         let groups = Groups::build(&offsets, &slots, &values, fill);
-        let link_base = offsets[groups.rows];
-        let rest = link_base as usize..;
+        // The grouped rows' links are held in `groups` only.
+        let grouped = offsets[groups.rows] as usize;
+        slots.drain(..grouped);
+        values.drain(..grouped);
+        slots.shrink_to_fit();
+        values.shrink_to_fit();
         ReceiverLinks {
             receivers,
             sender_ids,
@@ -317,10 +319,9 @@ impl ReceiverLinks {
             receiver_ids,
             task_starts: task_starts(&offsets, groups.rows),
             offsets,
-            link_base,
             groups,
-            slots: Slots::new(slots[rest.clone()].to_vec()),
-            values: values[rest].to_vec(),
+            slots: Slots::new(slots),
+            values,
         }
     }
 
@@ -332,7 +333,9 @@ impl ReceiverLinks {
     /// Links of the rows summed eight at a time (the nearly dense first rows, stored over
     /// their groups' senders with zeros where a row lacks a link).
     pub fn grouped_links(&self) -> usize {
-        self.link_base as usize
+        self.offsets
+            .get(self.groups.rows)
+            .map_or(0, |&n| n as usize)
     }
 
     /// Bytes a product reads per link of the rows kept row by row: its slot and its nine half
@@ -738,7 +741,7 @@ impl ReceiverLinks {
     /// Where the links of row `q` (from the grouped rows on) are in `slots`/`values`.
     #[inline(always)]
     fn links_of(&self, q: usize) -> std::ops::Range<usize> {
-        let base = self.link_base as usize;
+        let base = self.grouped_links();
         self.offsets[q] as usize - base..self.offsets[q + 1] as usize - base
     }
 
@@ -924,15 +927,19 @@ fn lanes(
     }
 }
 
-/// A row's two accumulators as nine floats: elements 0-4 from the first, 5-8 from the second.
-/// (Elements 5-7 are in both; taking them from the second keeps every lane of it in use, which
-/// keeps the compiler from narrowing it to the ninth element alone, inserted into the low lane
-/// of a register it picks: when that register holds an accumulator, each link's conversion
-/// waits for the previous link's sum, and the product takes twice as long.)
+/// Two accumulators of nine floats held as elements 0-7 and 5-8 (a row's, or a point's) as the
+/// nine floats: elements 0-4 from the first, 5-8 from the second. (Elements 5-7 are in both;
+/// taking them from the second keeps every lane of it in use, which keeps the compiler from
+/// narrowing it to the ninth element alone, inserted into the low lane of a register it picks:
+/// when that register holds an accumulator, each link's conversion waits for the previous
+/// link's sum, and the product takes twice as long.)
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,f16c")]
+#[target_feature(enable = "avx2")]
 #[inline]
-fn unpack(acc8: std::arch::x86_64::__m256, acc4: std::arch::x86_64::__m128) -> [f32; LINK_DIM] {
+pub(crate) fn unpack(
+    acc8: std::arch::x86_64::__m256,
+    acc4: std::arch::x86_64::__m128,
+) -> [f32; LINK_DIM] {
     use std::arch::x86_64::*;
     let mut out = [0.0f32; LINK_DIM];
     // SAFETY: `out` holds 9 `f32`: the 32 bytes stored from its start and the 16 from its
