@@ -11,7 +11,7 @@ use mlt_format::flat_basis::FlatBasis;
 use mlt_format::links::LINK_DIM;
 use mlt_format::pull_push::pull_push_levels;
 use mlt_format::BakedFile;
-use mlt_relight::flatten_op::SHARPEN_STEPS;
+use mlt_relight::flatten_op::{step_weight, SHARPEN_STEPS};
 use mlt_relight::FineEmission;
 use mlt_view::probe::{evaluate, Probe};
 use mlt_view::{CpuRelighter, Light, Relight};
@@ -222,18 +222,19 @@ fn bits(v: &[f32]) -> Vec<u32> {
 /// basis' own reconstruction at its points (the operators' 16-bit values and dropped values
 /// below 1e-3 cost about 1e-3, relative, per product); and the same bits for 1 and 2 threads.
 ///
-/// [`SHARPEN_STEPS`] steps `c_{k+1} = c_k + c_0 - W c_k` from `c_0 = c`: `(W c_k)_j` the flat
-/// expansion of `c_k` at flat point `j`.
+/// [`SHARPEN_STEPS`] steps `c_{k+1} = c_k + w_k (c_0 - W c_k)` from `c_0 = c`, `w_k` the
+/// step's relaxation weight: `(W c_k)_j` the flat expansion of `c_k` at flat point `j`.
 fn sharpened(fb: &FlatBasis, c: &[f32]) -> Vec<f32> {
     let b = &fb.ib.basis;
     let mut ck = c.to_vec();
-    for _ in 0..SHARPEN_STEPS {
+    for step in 0..SHARPEN_STEPS {
+        let w = step_weight(step);
         let mut next = vec![0.0f32; c.len()];
         for (j, o) in next.chunks_mut(LINK_DIM).enumerate() {
             fb.reconstruct(&ck, LINK_DIM, b.positions[j], b.normals[j], o);
             for (d, v) in o.iter_mut().enumerate() {
                 let k = j * LINK_DIM + d;
-                *v = ck[k] + c[k] - *v;
+                *v = ck[k] + w * (c[k] - *v);
             }
         }
         ck = next;

@@ -279,7 +279,8 @@ fn flatten_avx2_fma(bencher: divan::Bencher) {
     }
 }
 
-/// The sharpening step `c' = 2 c - W c` on the default operator's flat coefficients.
+/// The default sharpening steps `c_{k+1} = c_k + w_k (c_0 - W c_k)` on the default operator's
+/// flat coefficients.
 #[divan::bench]
 fn sharpen(bencher: divan::Bencher) {
     let s = setup();

@@ -28,7 +28,7 @@
 //! 4. flattening of `i` to the flat basis (section 4.1: one level on the points the solution
 //!    needs, [`FlatBasis`]) by a precomputed sparse operator ([`FlattenOp`], one row per flat
 //!    point) that holds only the columns of receivers with links, then a few steps of
-//!    iterated Shepard correction `c_{k+1} = c_k + c_0 - W c_k` ([`SharpenOp`]) that take
+//!    iterated Shepard correction `c_{k+1} = c_k + w_k (c_0 - W c_k)` ([`SharpenOp`]) that take
 //!    back most of the flat basis' smoothing.
 //!
 //! The operators are built once, in [`CpuRelighter::new`] (timed in [`LoadStats`]). When the

@@ -69,7 +69,7 @@ pub trait Relight {
     }
 
     /// The sharpening applied after the flattening operator (`SharpenOp::steps` steps of
-    /// `c_{k+1} = c_k + c_0 - W c_k`), for a renderer that flattens on the GPU; `None` when
+    /// `c_{k+1} = c_k + w_k (c_0 - W c_k)`), for a renderer that flattens on the GPU; `None` when
     /// the flat coefficients are not sharpened.
     fn sharpen_operator(&self) -> Option<&SharpenOp> {
         None

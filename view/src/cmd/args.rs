@@ -79,12 +79,13 @@ pub struct RelightArgs {
     #[arg(long)]
     pub point_samples: bool,
     /// Leave the flat coefficients as flattened (the exact values of Eq. 6 at the flat
-    /// points), without the sharpening steps `c_{k+1} = c_k + c_0 - W c_k` that take back the
-    /// flat basis' smoothing.
+    /// points), without the sharpening steps `c_{k+1} = c_k + w_k (c_0 - W c_k)` that take
+    /// back the flat basis' smoothing.
     #[arg(long)]
     pub no_sharpen: bool,
     /// Steps of the sharpening (iterated Shepard correction), 1 to 16: each takes back more of
-    /// the flat basis' smoothing for one more product of its weights `W`.
+    /// the flat basis' smoothing for one more product of its weights `W` (every second step
+    /// over-relaxed, its correction weighted by 2.5).
     #[arg(long, default_value_t = mlt_relight::flatten_op::SHARPEN_STEPS)]
     pub sharpen_steps: usize,
     /// Leave the finer receivers with the first bounce only, as the bake's `S` has them (the

@@ -2,11 +2,12 @@
 //! be implemented on the GPU"): the precomputed sparse operator of
 //! `mlt_relight::flatten_op` uploaded once, applied per relit frame by a compute pass that
 //! writes the flat coefficients straight into the buffer the splatting pass reads, after the
-//! sharpening steps `c_{k+1} = c_k + c_0 - W c_k` when the relighter sharpens. Each row is summed in its
-//! stored order, as on the CPU.
+//! sharpening steps `c_{k+1} = c_k + w_k (c_0 - W c_k)` when the relighter sharpens (one pass
+//! each, its relaxation weight `w_k` in its parameters). Each row is summed in its stored
+//! order, as on the CPU.
 
 use mlt_format::links::LINK_DIM;
-use mlt_relight::flatten_op::{FlattenOp, SharpenOp, BLOCK_ROWS, QUANTUM};
+use mlt_relight::flatten_op::{step_weight, FlattenOp, SharpenOp, BLOCK_ROWS, QUANTUM};
 use wgpu::util::DeviceExt;
 
 use super::context::{Gpu, GpuError};
@@ -66,13 +67,14 @@ struct OpBuffers {
     block_offsets: wgpu::Buffer,
     cols: wgpu::Buffer,
     order: wgpu::Buffer,
-    params: wgpu::Buffer,
+    /// Rows (points) of the operator.
+    points: u32,
     groups: (u32, u32),
 }
 
 impl OpBuffers {
-    /// Uploads `op`; `mode` 1 makes its passes sharpening steps.
-    fn upload(gpu: &Gpu, op: &FlattenOp, mode: u32) -> Result<OpBuffers, GpuError> {
+    /// Uploads `op`.
+    fn upload(gpu: &Gpu, op: &FlattenOp) -> Result<OpBuffers, GpuError> {
         let device = &gpu.device;
         let parts = op.parts();
         let points = op.points();
@@ -89,20 +91,6 @@ impl OpBuffers {
         let total_groups = (points as u32).div_ceil(WORKGROUP).max(1);
         let max_x = device.limits().max_compute_workgroups_per_dimension.max(1);
         let groups = (total_groups.min(max_x), total_groups.div_ceil(max_x));
-        let params = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("flatten params"),
-            contents: bytemuck::cast_slice(&[
-                points as u32,
-                groups.0 * WORKGROUP,
-                BLOCK_ROWS as u32,
-                QUANTUM,
-                mode,
-                0,
-                0,
-                0,
-            ]),
-            usage: wgpu::BufferUsages::UNIFORM,
-        });
         Ok(OpBuffers {
             offsets: storage(
                 gpu,
@@ -121,7 +109,7 @@ impl OpBuffers {
                 bytemuck::cast_slice(parts.block_cols),
             ),
             order: storage(gpu, "flatten order", bytemuck::cast_slice(parts.order)),
-            params,
+            points: points as u32,
             groups,
         })
     }
@@ -140,8 +128,9 @@ impl OpBuffers {
         .sum()
     }
 
-    /// A pass of the operator that reads `input` (and, for a sharpening step, the
-    /// unsharpened coefficients `original`) and writes `output`.
+    /// A pass of the operator that reads `input` and writes `output`: the product, or with
+    /// `sharpen` a sharpening step of that relaxation weight, which also reads the
+    /// unsharpened coefficients `original`.
     fn stage(
         &self,
         gpu: &Gpu,
@@ -149,7 +138,25 @@ impl OpBuffers {
         input: &wgpu::Buffer,
         original: &wgpu::Buffer,
         output: &wgpu::Buffer,
+        sharpen: Option<f32>,
     ) -> Stage {
+        let (mode, weight) = sharpen.map_or((0, 0), |w| (1, w.to_bits()));
+        let params = gpu
+            .device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("flatten params"),
+                contents: bytemuck::cast_slice(&[
+                    self.points,
+                    self.groups.0 * WORKGROUP,
+                    BLOCK_ROWS as u32,
+                    QUANTUM,
+                    mode,
+                    weight,
+                    0,
+                    0,
+                ]),
+                usage: wgpu::BufferUsages::UNIFORM,
+            });
         let layout = pipeline.get_bind_group_layout(0);
         let buffers = [
             &self.offsets,
@@ -159,7 +166,7 @@ impl OpBuffers {
             &self.order,
             input,
             output,
-            &self.params,
+            &params,
             original,
         ];
         let resources = buffers.map(|b| b.as_entire_binding());
@@ -204,7 +211,7 @@ impl GpuFlatten {
         });
         let mut bytes = hier.size();
         let mut stages = Vec::new();
-        let flatten = OpBuffers::upload(gpu, op, 0)?;
+        let flatten = OpBuffers::upload(gpu, op)?;
         bytes += flatten.bytes();
         match sharpen {
             Some(sharpen) if sharpen.points() == op.points() => {
@@ -229,8 +236,8 @@ impl GpuFlatten {
                         )
                     })
                     .collect();
-                let smoothing = OpBuffers::upload(gpu, sharpen.smoothing(), 1)?;
-                stages.push(flatten.stage(gpu, &pipeline, &hier, &hier, &unsharpened));
+                let smoothing = OpBuffers::upload(gpu, sharpen.smoothing())?;
+                stages.push(flatten.stage(gpu, &pipeline, &hier, &hier, &unsharpened, None));
                 let mut input = &unsharpened;
                 for step in 0..steps {
                     let out = if step + 1 == steps {
@@ -238,7 +245,14 @@ impl GpuFlatten {
                     } else {
                         &between[step % 2]
                     };
-                    stages.push(smoothing.stage(gpu, &pipeline, input, &unsharpened, out));
+                    stages.push(smoothing.stage(
+                        gpu,
+                        &pipeline,
+                        input,
+                        &unsharpened,
+                        out,
+                        Some(step_weight(step)),
+                    ));
                     input = out;
                 }
                 bytes += smoothing.bytes()
@@ -252,7 +266,7 @@ impl GpuFlatten {
                     op.points()
                 )))
             }
-            None => stages.push(flatten.stage(gpu, &pipeline, &hier, &hier, output)),
+            None => stages.push(flatten.stage(gpu, &pipeline, &hier, &hier, output, None)),
         }
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(GpuError::Validation(e.to_string()));

@@ -45,7 +45,9 @@ use mlt_format::flat_basis::FlatBasis;
 use rayon::prelude::*;
 
 pub use kernels::Kernel;
-pub use sharpen::{SharpenOp, SharpenScratch, MAX_SHARPEN_STEPS, SHARPEN_STEPS};
+pub use sharpen::{
+    step_weight, SharpenOp, SharpenScratch, MAX_SHARPEN_STEPS, OVER_RELAXATION, SHARPEN_STEPS,
+};
 
 /// Points per block of the parallel build and of the reordering pass.
 const BUILD_BLOCK: usize = 2048;

@@ -4,14 +4,15 @@
 // 16 bits) and the value as a fraction of `counts.w` (high 16 bits). The same shader runs the
 // sharpening steps after it (`mode.x` = 1): the operator is then the flat basis' smoothing `W`,
 // `hier` holds the flat coefficients `c_k` of the step before, `original` those of the first
-// pass, `c_0`, and the output is `c_{k+1} = c_k + c_0 - W c_k`.
+// pass, `c_0`, and the output is `c_{k+1} = c_k + w_k (c_0 - W c_k)`, `w_k` the step's
+// relaxation weight (`mode.y`, a float's bits).
 
 struct Params {
     // x: number of points; y: invocations per row of the dispatch grid; z: rows per block;
     // w: the values' fixed-point scale.
     counts: vec4<u32>,
-    // x: 0 writes the row's sum; 1 writes the point's own input and original value minus the
-    // row's sum.
+    // x: 0 writes the row's sum; 1 writes the point's own input plus the relaxation weight
+    // times its original value minus the row's sum. y: the relaxation weight's bits.
     mode: vec4<u32>,
 };
 
@@ -48,8 +49,9 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     }
     let j = order[pos] * 9u;
     if params.mode.x == 1u {
+        let w = bitcast<f32>(params.mode.y);
         for (var d = 0u; d < 9u; d++) {
-            flat[j + d] = hier[j + d] + original[j + d] - acc[d];
+            flat[j + d] = hier[j + d] + w * (original[j + d] - acc[d]);
         }
     } else {
         for (var d = 0u; d < 9u; d++) {
