@@ -50,11 +50,31 @@ pub struct FlatCheck {
     /// Surface pixels where the flat image is below a quarter of the exact one (where that is
     /// above a thousandth of its maximum): dark spots that flattening adds.
     pub darker: Vec<usize>,
-    /// The surface point of each pixel, and the exact indirect image.
+    /// The surface point of each pixel, the flat functions covering it, and the exact and
+    /// flat indirect images.
     #[serde(skip)]
     pub points: Vec<Option<SurfacePoint>>,
     #[serde(skip)]
+    pub coverage: Vec<Option<usize>>,
+    #[serde(skip)]
     pub exact: RgbImage,
+    #[serde(skip)]
+    pub flat: RgbImage,
+}
+
+/// One pixel the check flags, with what is there.
+#[derive(Clone, Debug, Serialize)]
+pub struct FlaggedPixel {
+    pub x: u32,
+    pub y: u32,
+    /// `"uncovered"` or `"darker"`.
+    pub kind: &'static str,
+    pub position: [f32; 3],
+    pub normal: [f32; 3],
+    pub coverage: usize,
+    /// Luminance of the flat and the exact indirect irradiance there.
+    pub flat: f32,
+    pub exact: f32,
 }
 
 /// Relative RMS difference of the luminances of `a` from `reference`.
@@ -82,7 +102,8 @@ impl FlatCheck {
     ) -> FlatCheck {
         let w = camera.width;
         let points = surface_points(camera, caster);
-        let counts: Vec<usize> = flat_coverage(fb, &points).into_iter().flatten().collect();
+        let coverage = flat_coverage(fb, &points);
+        let counts: Vec<usize> = coverage.iter().flatten().copied().collect();
         let mut histogram = [0usize; BINS];
         for &c in &counts {
             histogram[(c / BIN).min(BINS - 1)] += 1;
@@ -122,8 +143,34 @@ impl FlatCheck {
             rel_rmse_at_pixel_normals: None,
             darker,
             points,
+            coverage,
             exact,
+            flat: flat_image,
         }
+    }
+
+    /// The uncovered pixels, then the darker ones, at most `n` in all, row by row.
+    pub fn flagged(&self, n: usize) -> Vec<FlaggedPixel> {
+        let w = self.width as usize;
+        let uncovered = (0..self.points.len()).filter(|&k| self.coverage[k] == Some(0));
+        let mark = |k: usize, kind| {
+            let p = self.points[k]?;
+            Some(FlaggedPixel {
+                x: (k % w) as u32,
+                y: (k / w) as u32,
+                kind,
+                position: p.position,
+                normal: p.normal,
+                coverage: self.coverage[k].unwrap_or(0),
+                flat: luminance(self.flat.pixels[k]),
+                exact: luminance(self.exact.pixels[k]),
+            })
+        };
+        uncovered
+            .filter_map(|k| mark(k, "uncovered"))
+            .chain(self.darker.iter().filter_map(|&k| mark(k, "darker")))
+            .take(n)
+            .collect()
     }
 
     /// Measures [`FlatCheck::rel_rmse_at_pixel_normals`] for the hierarchical coefficients `i`
@@ -173,5 +220,75 @@ impl FlatCheck {
                 )
             })
             .unwrap_or_default()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 3x2 check: pixel 1 sees nothing, pixel 2 is uncovered, pixels 3 and 5 are darker
+    /// than a quarter of the exact image.
+    fn check() -> FlatCheck {
+        let point = |x: f32| {
+            Some(SurfacePoint {
+                position: [x, 0.0, 0.0],
+                normal: [0.0, 0.0, 1.0],
+                albedo: [0.5; 3],
+            })
+        };
+        let image = |v: [f32; 6]| RgbImage {
+            width: 3,
+            height: 2,
+            pixels: v.iter().map(|&v| [v; 3]).collect(),
+        };
+        FlatCheck {
+            flat_points: 4,
+            hierarchical_points: 6,
+            points_per_level: vec![6],
+            flat_per_level: vec![4],
+            width: 3,
+            height: 2,
+            surface_pixels: 5,
+            coverage_mean: 3.2,
+            histogram: [2, 3, 0, 0, 0, 0, 0, 0],
+            coverage_max: 6,
+            uncovered: 1,
+            rel_rmse: 0.5,
+            rel_rmse_at_pixel_normals: None,
+            darker: vec![2, 3, 5],
+            points: vec![
+                point(0.0),
+                None,
+                point(2.0),
+                point(3.0),
+                point(4.0),
+                point(5.0),
+            ],
+            coverage: vec![Some(4), None, Some(0), Some(6), Some(4), Some(2)],
+            exact: image([1.0, 0.0, 1.0, 1.0, 1.0, 2.0]),
+            flat: image([1.0, 0.0, 0.0, 0.2, 0.9, 0.1]),
+        }
+    }
+
+    #[test]
+    fn flagged_pixels_are_the_uncovered_then_the_darker_ones_with_what_is_there() {
+        let c = check();
+        let all = c.flagged(usize::MAX);
+        let got: Vec<_> = all.iter().map(|p| (p.kind, p.x, p.y, p.coverage)).collect();
+        assert_eq!(
+            got,
+            [
+                ("uncovered", 2, 0, 0),
+                ("darker", 2, 0, 0),
+                ("darker", 0, 1, 6),
+                ("darker", 2, 1, 2)
+            ]
+        );
+        let last = &all[3];
+        assert_eq!(last.position, [5.0, 0.0, 0.0]);
+        assert!((last.flat - 0.1).abs() < 1e-6 && (last.exact - 2.0).abs() < 1e-6);
+        assert_eq!(c.flagged(2).len(), 2);
+        assert!(c.flagged(0).is_empty());
     }
 }

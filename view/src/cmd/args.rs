@@ -28,13 +28,13 @@ pub struct SceneArgs {
     #[arg(long)]
     pub scene: Option<String>,
     /// Camera position (default: the file's camera).
-    #[arg(long, value_parser = parse_vec3)]
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
     pub camera_pos: Option<Vec3>,
     /// Camera target.
-    #[arg(long, value_parser = parse_vec3)]
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
     pub camera_target: Option<Vec3>,
     /// Camera up vector.
-    #[arg(long, value_parser = parse_vec3)]
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
     pub camera_up: Option<Vec3>,
     /// Vertical field of view, degrees.
     #[arg(long)]
@@ -46,13 +46,13 @@ pub struct SceneArgs {
     #[arg(long)]
     pub height: Option<u32>,
     /// Light position (default: the file's light).
-    #[arg(long, value_parser = parse_vec3)]
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
     pub light_pos: Option<Vec3>,
     /// Light RGB intensity in W/sr.
-    #[arg(long, value_parser = parse_vec3)]
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
     pub light_intensity: Option<Vec3>,
     /// Spot direction (with --cone-deg): makes the light a spot.
-    #[arg(long, value_parser = parse_vec3, requires = "cone_deg")]
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true, requires = "cone_deg")]
     pub light_dir: Option<Vec3>,
     /// Spot full cone angle, degrees.
     #[arg(long, requires = "light_dir")]
@@ -302,6 +302,39 @@ mod tests {
                 .map(|(window, pays)| lag.lagged(window, pays));
             assert_eq!(got, want, "{lag:?}");
         }
+    }
+
+    #[test]
+    fn vectors_may_start_with_a_minus_sign() {
+        use clap::Parser;
+        #[derive(Parser)]
+        struct Cli {
+            #[command(flatten)]
+            baked: BakedArgs,
+        }
+        let cli = Cli::try_parse_from([
+            "view",
+            "f.mlt",
+            "--camera-pos",
+            "-10,3,2",
+            "--camera-target",
+            "-1.5,-2,-0.25",
+            "--light-pos",
+            "-5,3,-2",
+            "--light-dir",
+            "-0,-1,0",
+            "--cone-deg",
+            "40",
+        ])
+        .unwrap();
+        let s = &cli.baked.scene;
+        assert_eq!(s.camera_pos, Some(Vec3::new(-10.0, 3.0, 2.0)));
+        assert_eq!(s.camera_target, Some(Vec3::new(-1.5, -2.0, -0.25)));
+        assert_eq!(s.light_pos, Some(Vec3::new(-5.0, 3.0, -2.0)));
+        assert_eq!(s.light_dir, Some(Vec3::new(0.0, -1.0, 0.0)));
+        // An option after a vector is still an option, and a malformed vector an error.
+        assert!(Cli::try_parse_from(["view", "f.mlt", "--light-pos", "--json"]).is_err());
+        assert!(Cli::try_parse_from(["view", "f.mlt", "--light-pos", "-5,3"]).is_err());
     }
 
     #[test]

@@ -1,8 +1,9 @@
-//! `view flat FILE [--width W --height H] [--json] [--by-normal]`: the flat basis in the
+//! `view flat FILE [--width W --height H] [--json] [--by-normal] [--list N]`: the flat basis in the
 //! file's view (or the given camera), relit once with the file's light (or the given one): flat
 //! functions per surface pixel (mean, histogram, uncovered pixels) and the flat indirect image
 //! against the exact per-pixel evaluation of Eq. 6 (relative RMSE; with `--by-normal` also
-//! with the flat points' values taken at each pixel's normal), on the CPU without a GPU.
+//! with the flat points' values taken at each pixel's normal; with `--list` the flagged pixels
+//! themselves), on the CPU without a GPU.
 
 use anyhow::Result;
 use clap::Args;
@@ -25,6 +26,10 @@ pub struct FlatArgs {
     /// the normal through its weights (slow: about 20 s at 640x360 on Sponza).
     #[arg(long)]
     pub by_normal: bool,
+    /// Also list up to N flagged pixels (the uncovered ones, then those below a quarter of the
+    /// exact image) with their surface point, normal, covering functions and both values.
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    pub list: usize,
 }
 
 pub fn run(args: &FlatArgs) -> Result<()> {
@@ -42,9 +47,18 @@ pub fn run(args: &FlatArgs) -> Result<()> {
             json["flat_stored"] = serde_json::json!(v.relighter.load_stats().flat_stored);
             json["flat_normal_power"] = serde_json::json!(fb.normal_power);
             json["sharpened"] = serde_json::json!(v.relighter.sharpen);
+            if args.list > 0 {
+                json["flagged"] = serde_json::to_value(check.flagged(args.list))?;
+            }
             println!("{}", serde_json::to_string_pretty(&json)?);
         } else {
             print!("{}", check.summary());
+            for p in check.flagged(args.list) {
+                println!(
+                    "{} pixel ({}, {}): point {:?}, normal {:?}, {} covering, flat {:.4e}, exact {:.4e}",
+                    p.kind, p.x, p.y, p.position, p.normal, p.coverage, p.flat, p.exact
+                );
+            }
         }
         Ok(())
     })

@@ -236,7 +236,7 @@ fn camera_with(base: &CameraInfo, args: &SceneArgs) -> Result<Camera> {
         args.width.unwrap_or(base.width),
         args.height.unwrap_or(base.height),
     )
-    .context("the camera")
+    .context("the camera (set it with --camera-pos, --camera-target, --camera-up, --fovy, --width, --height)")
 }
 
 /// The light `base` with the command line's overrides (position, intensity, spot cone), which
