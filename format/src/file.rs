@@ -366,6 +366,19 @@ impl BakedFile {
         self.header.sections.iter().find(|e| e.tag == tag)
     }
 
+    /// [`BakedFile::section`] where the section may be absent: `None` then.
+    fn optional_section<T>(&self, tag: [u8; 4]) -> Result<Option<T>, FormatError>
+    where
+        T: rkyv::Archive,
+        T::Archived: for<'a> rkyv::bytecheck::CheckBytes<rkyv::api::high::HighValidator<'a, rancor::Error>>
+            + rkyv::Deserialize<T, rkyv::api::high::HighDeserializer<rancor::Error>>,
+    {
+        if !self.has_section(tag) {
+            return Ok(None);
+        }
+        self.section::<T>(tag).map(Some)
+    }
+
     fn section<T>(&self, tag: [u8; 4]) -> Result<T, FormatError>
     where
         T: rkyv::Archive,
@@ -436,43 +449,28 @@ impl BakedFile {
 
     /// The `TRNS` section, if the file has one.
     pub fn transport_meta(&self) -> Result<Option<TransportMeta>, FormatError> {
-        if !self.has_section(TAG_TRANSPORT) {
-            return Ok(None);
-        }
-        self.section::<TransportMeta>(TAG_TRANSPORT).map(Some)
+        self.optional_section::<TransportMeta>(TAG_TRANSPORT)
     }
 
     /// The `TRPT` section, if the file has one (format 1.3 and later, with transport).
     pub fn transport_report(&self) -> Result<Option<TransportReport>, FormatError> {
-        if !self.has_section(TAG_REPORT) {
-            return Ok(None);
-        }
-        self.section::<TransportReport>(TAG_REPORT).map(Some)
+        self.optional_section::<TransportReport>(TAG_REPORT)
     }
 
     /// The `TDRP` section, if the file has one (format 1.5 and later, with transport).
     pub fn refinement_drop(&self) -> Result<Option<RefinementDrop>, FormatError> {
-        if !self.has_section(TAG_DROP) {
-            return Ok(None);
-        }
-        self.section::<RefinementDrop>(TAG_DROP).map(Some)
+        self.optional_section::<RefinementDrop>(TAG_DROP)
     }
 
     /// The `TBNC` section, if the file has one (format 1.7 and later, with level-0 bounces
     /// traced as paths).
     pub fn bounce_method(&self) -> Result<Option<BounceMethod>, FormatError> {
-        if !self.has_section(TAG_BOUNCES) {
-            return Ok(None);
-        }
-        self.section::<BounceMethod>(TAG_BOUNCES).map(Some)
+        self.optional_section::<BounceMethod>(TAG_BOUNCES)
     }
 
     /// The `TCAM` section, if the file has one (format 1.8 and later, with transport).
     pub fn camera_check(&self) -> Result<Option<CameraCheck>, FormatError> {
-        if !self.has_section(TAG_CAMERA_CHECK) {
-            return Ok(None);
-        }
-        self.section::<CameraCheck>(TAG_CAMERA_CHECK).map(Some)
+        self.optional_section::<CameraCheck>(TAG_CAMERA_CHECK)
     }
 
     /// The `TSHD` section of a shard file, validated against the basis' size.

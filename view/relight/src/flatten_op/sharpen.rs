@@ -189,6 +189,24 @@ mod tests {
         out
     }
 
+    /// `sin(kx x) cos(ky y) + 1.5` at the flat points of `fb`.
+    fn wave(fb: &FlatBasis, kx: f32, ky: f32) -> Vec<f32> {
+        let b = &fb.ib.basis;
+        b.positions
+            .iter()
+            .map(|p| (kx * p[0]).sin() * (ky * p[1]).cos() + 1.5)
+            .collect()
+    }
+
+    /// Relative RMS difference of the flat expansion of `f` at the flat points of `fb` from
+    /// the exact values `c` there.
+    fn residual(fb: &FlatBasis, f: &[f32], c: &[f32]) -> f64 {
+        let w = smoothed(fb, f, 1);
+        let num: f64 = w.iter().zip(c).map(|(a, b)| f64::from(a - b).powi(2)).sum();
+        let den: f64 = c.iter().map(|b| f64::from(*b).powi(2)).sum();
+        (num / den).sqrt()
+    }
+
     #[test]
     fn a_constant_is_kept() {
         let ib = plane_basis(4, 3);
@@ -276,26 +294,12 @@ mod tests {
         // to the exact values `c` than `W c` was.
         let ib = plane_basis(5, 3);
         let fb = all(&ib);
-        let c: Vec<f32> = fb
-            .ib
-            .basis
-            .positions
-            .iter()
-            .map(|p| (9.0 * p[0]).sin() * (7.0 * p[1]).cos() + 1.5)
-            .collect();
+        let c = wave(&fb, 9.0, 7.0);
         let mut op = SharpenOp::build(&fb).unwrap();
         op.set_steps(1).unwrap();
         let mut sharp = c.clone();
         op.apply(&mut sharp, 1, &mut SharpenScratch::default());
-        let err = |f: &[f32]| {
-            let w = smoothed(&fb, f, 1);
-            (w.iter()
-                .zip(&c)
-                .map(|(a, b)| f64::from(a - b).powi(2))
-                .sum::<f64>()
-                / c.iter().map(|b| f64::from(*b).powi(2)).sum::<f64>())
-            .sqrt()
-        };
+        let err = |f: &[f32]| residual(&fb, f, &c);
         let (before, after) = (err(&c), err(&sharp));
         assert!(before > 1e-3, "{before}");
         assert!(after < 0.7 * before, "{before} -> {after}");
@@ -318,22 +322,8 @@ mod tests {
         // exact values than after two plain steps, and than after three.
         let ib = plane_basis(6, 3);
         let fb = all(&ib);
-        let c: Vec<f32> = fb
-            .ib
-            .basis
-            .positions
-            .iter()
-            .map(|p| (23.0 * p[0]).sin() * (19.0 * p[1]).cos() + 1.5)
-            .collect();
-        let residual = |f: &[f32]| {
-            let w = smoothed(&fb, f, 1);
-            (w.iter()
-                .zip(&c)
-                .map(|(a, b)| f64::from(a - b).powi(2))
-                .sum::<f64>()
-                / c.iter().map(|b| f64::from(*b).powi(2)).sum::<f64>())
-            .sqrt()
-        };
+        let c = wave(&fb, 23.0, 19.0);
+        let residual = |f: &[f32]| residual(&fb, f, &c);
         let plain = |steps: usize| {
             let mut ck = c.clone();
             for _ in 0..steps {
