@@ -50,6 +50,9 @@ pub struct FlatCheck {
     /// Surface pixels where the flat image is below a quarter of the exact one (where that is
     /// above a thousandth of its maximum): dark spots that flattening adds.
     pub darker: Vec<usize>,
+    /// The exact indirect image's largest luminance (the scale of [`FlatCheck::darker`]'s
+    /// floor and of [`FlaggedPixel`]'s values).
+    pub exact_max: f32,
     /// The surface point of each pixel, the flat functions covering it, and the exact and
     /// flat indirect images.
     #[serde(skip)]
@@ -142,6 +145,7 @@ impl FlatCheck {
             rel_rmse: rel_rmse(&flat_image, &exact),
             rel_rmse_at_pixel_normals: None,
             darker,
+            exact_max: max_lum,
             points,
             coverage,
             exact,
@@ -257,6 +261,7 @@ mod tests {
             rel_rmse: 0.5,
             rel_rmse_at_pixel_normals: None,
             darker: vec![2, 3, 5],
+            exact_max: 2.0,
             points: vec![
                 point(0.0),
                 None,

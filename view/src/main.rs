@@ -82,7 +82,26 @@ fn with_default_command(args: Vec<OsString>) -> Vec<OsString> {
     out
 }
 
+/// Whether to turn Mesa's Vulkan device-selection layer off, given the environment `var`.
+///
+/// The layer is an implicit Vulkan layer, active wherever Mesa's Vulkan drivers are installed.
+/// When an instance enables the Wayland surface extension, as wgpu's does, it connects to the
+/// Wayland display to find the display's GPU; without `XDG_RUNTIME_DIR` (a headless machine,
+/// CI, a container) libwayland then prints "error: XDG_RUNTIME_DIR is invalid or not set in
+/// the environment." for every instance, although nothing is wrong. There is no display to
+/// choose a GPU for then, so the layer goes off by its own switch (`NODEVICE_SELECT=1`),
+/// unless the user chose a device through it (`MESA_VK_DEVICE_SELECT`) or set the switch.
+fn device_select_off(var: impl Fn(&str) -> Option<OsString>) -> bool {
+    let unset = |k: &str| var(k).is_none_or(|v| v.is_empty());
+    unset("XDG_RUNTIME_DIR") && unset("MESA_VK_DEVICE_SELECT") && var("NODEVICE_SELECT").is_none()
+}
+
 fn main() -> Result<()> {
+    if device_select_off(|k| std::env::var_os(k)) {
+        // Sound: the first statement of `main`, before any other thread exists that could
+        // read the environment while it changes.
+        std::env::set_var("NODEVICE_SELECT", "1");
+    }
     let cli = Cli::parse_from(with_default_command(std::env::args_os().collect()));
     match &cli.command {
         Command::Open(a) => cmd::open::run(a),
@@ -119,6 +138,29 @@ mod tests {
         }
         let cli = Cli::try_parse_from(with_default_command(args(&["view", "a.mlt"]))).unwrap();
         assert!(matches!(cli.command, Command::Open(ref o) if o.baked.file.as_os_str() == "a.mlt"));
+    }
+
+    #[test]
+    fn the_device_selection_layer_goes_off_only_without_a_runtime_dir_or_a_choice() {
+        let env = |vars: &'static [(&'static str, &'static str)]| {
+            move |k: &str| {
+                vars.iter()
+                    .find(|(name, _)| *name == k)
+                    .map(|(_, v)| OsString::from(v))
+            }
+        };
+        assert!(device_select_off(env(&[])));
+        assert!(device_select_off(env(&[("XDG_RUNTIME_DIR", "")])));
+        assert!(device_select_off(env(&[("DISPLAY", ":99")])));
+        assert!(!device_select_off(env(&[(
+            "XDG_RUNTIME_DIR",
+            "/run/user/1000"
+        )])));
+        assert!(!device_select_off(env(&[(
+            "MESA_VK_DEVICE_SELECT",
+            "10de:2684"
+        )])));
+        assert!(!device_select_off(env(&[("NODEVICE_SELECT", "0")])));
     }
 
     #[test]

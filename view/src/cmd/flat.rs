@@ -53,6 +53,9 @@ pub fn run(args: &FlatArgs) -> Result<()> {
             println!("{}", serde_json::to_string_pretty(&json)?);
         } else {
             print!("{}", check.summary());
+            if args.list > 0 {
+                println!("the exact image's brightest pixel: {:.4e}", check.exact_max);
+            }
             for p in check.flagged(args.list) {
                 println!(
                     "{} pixel ({}, {}): point {:?}, normal {:?}, {} covering, flat {:.4e}, exact {:.4e}",
