@@ -13,7 +13,6 @@ use mlt_bake::BakeOptions;
 use mlt_format::links::LINK_DIM;
 use mlt_view::exact::{blotches, dark_pixels};
 use mlt_view::flat_check::FlatCheck;
-use mlt_view::images::luminance;
 use mlt_view::reference::render_reference;
 use mlt_view::Camera;
 
@@ -51,12 +50,7 @@ fn check_cornell(name: &str, opts: BakeOptions, w: u32, h: u32, check_blotch: bo
         "{} surface pixels",
         c.surface_pixels
     );
-    let max_lum = c
-        .exact
-        .pixels
-        .iter()
-        .map(|p| luminance(*p))
-        .fold(0.0, f32::max);
+    let max_lum = c.exact_max;
     let dark_exact = dark_pixels(&c.exact, &c.points, 3, 0.25, 1e-3 * max_lum);
     eprintln!(
         "{name}: {}exact pixels darker than a quarter of their neighbourhood {}; without \
