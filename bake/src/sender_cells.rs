@@ -5,7 +5,8 @@
 //! level, the leaves of that level's R-tree whose boxes overlap the cell (slightly enlarged), in
 //! the tree's depth-first order. At a point `x` of the cell, [`SenderCells::for_each_weight`]
 //! tests `x` against each listed leaf's box and evaluates the weights of the leaves that contain
-//! it. An inner node's box is the exact union of its items' boxes, so it contains every leaf
+//! it, the four points of a leaf side by side (SSE2 on x86-64) from a copy of the leaf laid out
+//! for that. An inner node's box is the exact union of its items' boxes, so it contains every leaf
 //! box below it: the leaves an R-tree query enters are exactly those whose own box contains
 //! `x`, visited in depth-first order. The list therefore yields the same senders with the same
 //! weights in the same order as [`IndexedBasis::for_each_weight`], and the Shepard sums (Eq. 2)
@@ -16,13 +17,10 @@
 
 use std::sync::OnceLock;
 
-use mlt_format::kernel::{kernel, F_SQUASH};
+use mlt_format::kernel::F_SQUASH;
 use mlt_format::rtree::LEAF_SIZE;
 use mlt_format::shepard::MIN_WEIGHT_SUM;
 use mlt_format::{Basis, IndexedBasis, RTree};
-
-// Item masks of a leaf are 32 bits wide.
-const _: () = assert!(LEAF_SIZE <= 32);
 
 /// Most cells along one axis (bounds the rounding of the cell index, see [`SenderCells::new`]).
 const MAX_AXIS_CELLS: usize = 1024;
@@ -46,60 +44,206 @@ pub struct SenderCells<'a> {
     max_abs: f32,
     dims: [usize; 3],
     /// Per cell: `levels` end offsets (into the rest of the slice), then the leaves of every
-    /// level, level by level: the node index in the low 32 bits, and above them a mask of the
-    /// leaf's items whose weight may be non-zero in the cell (the others are skipped).
+    /// level, level by level: the leaf's index in `leaves` in the low 32 bits, and above them
+    /// a mask of the leaf's items whose weight may be non-zero in the cell (the others are
+    /// skipped).
     cells: Vec<OnceLock<Box<[u64]>>>,
-    /// Per sender level, the points of its R-tree's `items` in the same order, packed.
-    items: Vec<Vec<Item>>,
+    /// Per sender level, its R-tree's leaves in node order, packed ([`Leaf`]).
+    leaves: Vec<Vec<Leaf>>,
+    /// Per sender level and R-tree node, the node's index in `leaves` (leaves only).
+    leaf_of_node: Vec<Vec<u32>>,
 }
 
-/// A sender point as the weight evaluation reads it, in one cache line's half.
+/// One R-tree leaf as the weight evaluation reads it: its box, then its points (at most
+/// [`LEAF_SIZE`], four) component by component, so that their four weights of Eq. 8 are
+/// computed side by side, with no branch per point ([`Leaf::weights`]). Unused lanes have a
+/// zero normal, hence zero weight, and the cell lists never name them.
 #[derive(Clone, Copy, Debug)]
-struct Item {
-    position: [f32; 3],
-    normal: [f32; 3],
+#[repr(C, align(16))]
+struct Leaf {
+    /// The box's lower corner, the fourth lane `-inf` (contains every coordinate).
+    lo: [f32; 4],
+    /// The box's upper corner, the fourth lane `+inf`.
+    hi: [f32; 4],
+    px: [f32; 4],
+    py: [f32; 4],
+    pz: [f32; 4],
+    nx: [f32; 4],
+    ny: [f32; 4],
+    nz: [f32; 4],
     /// `1 / r_j`.
-    inv_radius: f32,
-    j: u32,
+    inv_radius: [f32; 4],
+    /// Global point indices.
+    j: [u32; 4],
 }
 
-impl Item {
-    fn new(b: &Basis, j: u32) -> Item {
-        let ju = j as usize;
-        Item {
-            position: b.positions[ju],
-            normal: b.normals[ju],
-            inv_radius: 1.0 / b.radii[ju],
-            j,
+// A leaf's points fill the four lanes of `Leaf`.
+const _: () = assert!(LEAF_SIZE == 4);
+
+/// `2 F + F^2` of Eq. 10's squashed distance, as `mlt_format::kernel` computes it.
+const SQUASH: f32 = 2.0 * F_SQUASH + F_SQUASH * F_SQUASH;
+
+impl Leaf {
+    /// Leaf node `node` of `tree` over the points of `b`.
+    fn new(b: &Basis, tree: &RTree, node: usize) -> Leaf {
+        let (lo, hi) = (tree.node_min[node], tree.node_max[node]);
+        let mut leaf = Leaf {
+            lo: [lo[0], lo[1], lo[2], f32::NEG_INFINITY],
+            hi: [hi[0], hi[1], hi[2], f32::INFINITY],
+            px: [0.0; 4],
+            py: [0.0; 4],
+            pz: [0.0; 4],
+            nx: [0.0; 4],
+            ny: [0.0; 4],
+            nz: [0.0; 4],
+            inv_radius: [0.0; 4],
+            j: [u32::MAX; 4],
+        };
+        let first = tree.node_first[node] as usize;
+        let count = tree.node_count[node] as usize;
+        for (k, &j) in tree.items[first..first + count].iter().enumerate() {
+            let ju = j as usize;
+            let (p, n) = (b.positions[ju], b.normals[ju]);
+            (leaf.px[k], leaf.py[k], leaf.pz[k]) = (p[0], p[1], p[2]);
+            (leaf.nx[k], leaf.ny[k], leaf.nz[k]) = (n[0], n[1], n[2]);
+            leaf.inv_radius[k] = 1.0 / b.radii[ju];
+            leaf.j[k] = j;
         }
+        leaf
     }
 
-    /// `mlt_format::kernel::weight(x, n, x_j, n_j, r_j)` (Eq. 8) with the same floating-point
-    /// operations in the same order, the reciprocal of the radius precomputed (the radius is
-    /// positive and finite in a validated basis).
+    /// Whether the leaf's box contains `x` (`RTree::node_contains`: false for NaN).
     #[inline(always)]
-    fn weight(&self, x: [f32; 3], n: [f32; 3]) -> f32 {
-        let nj = self.normal;
-        let c = n[0] * nj[0] + n[1] * nj[1] + n[2] * nj[2];
-        if c.is_nan() || c <= 0.0 {
-            return 0.0;
+    fn contains(&self, x: [f32; 3]) -> bool {
+        (0..3).all(|a| x[a] >= self.lo[a] && x[a] <= self.hi[a])
+    }
+
+    /// The weights `mlt_format::kernel::weight(x, n, x_j, n_j, r_j)` (Eq. 8) of the four
+    /// lanes, with the same floating-point operations in the same order (the reciprocal of
+    /// the radius precomputed; the radius is positive and finite in a validated basis), and
+    /// the mask of the lanes whose weight is positive. With SSE2 (every x86-64 CPU) the four
+    /// are computed at once by [`Leaf::weights_sse2`], which gives the same bits.
+    #[inline(always)]
+    fn weights(&self, x: [f32; 3], n: [f32; 3]) -> ([f32; 4], u32) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            self.weights_sse2(x, n)
         }
-        let inv = self.inv_radius;
-        let p = self.position;
-        let v = [
-            (x[0] - p[0]) * inv,
-            (x[1] - p[1]) * inv,
-            (x[2] - p[2]) * inv,
-        ];
-        let vn = v[0] * nj[0] + v[1] * nj[1] + v[2] * nj[2];
-        let q = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-            + (2.0 * F_SQUASH + F_SQUASH * F_SQUASH) * vn * vn;
-        if q >= 1.0 || q.is_nan() {
-            return 0.0;
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            self.weights_scalar(x, n)
         }
-        kernel(q.sqrt()) * c * c
+    }
+
+    /// [`Leaf::weights`] one lane at a time.
+    #[cfg(any(test, not(target_arch = "x86_64")))]
+    #[inline(always)]
+    fn weights_scalar(&self, x: [f32; 3], n: [f32; 3]) -> ([f32; 4], u32) {
+        let mut w = [0.0f32; 4];
+        let mut positive = 0u32;
+        for (k, wk) in w.iter_mut().enumerate() {
+            let nj = [self.nx[k], self.ny[k], self.nz[k]];
+            let c = n[0] * nj[0] + n[1] * nj[1] + n[2] * nj[2];
+            if c.is_nan() || c <= 0.0 {
+                continue;
+            }
+            let inv = self.inv_radius[k];
+            let v = [
+                (x[0] - self.px[k]) * inv,
+                (x[1] - self.py[k]) * inv,
+                (x[2] - self.pz[k]) * inv,
+            ];
+            let vn = v[0] * nj[0] + v[1] * nj[1] + v[2] * nj[2];
+            let q = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) + SQUASH * vn * vn;
+            if q >= 1.0 || q.is_nan() {
+                continue;
+            }
+            *wk = mlt_format::kernel::kernel(q.sqrt()) * c * c;
+            if *wk > 0.0 {
+                positive |= 1 << k;
+            }
+        }
+        (w, positive)
+    }
+
+    /// [`Leaf::weights`] with SSE2, four lanes at once. Every operation is the scalar one per
+    /// lane (products and sums in the same order, no fused multiply-add, a correctly rounded
+    /// square root), and the branches become masks: a lane whose `c` is not above zero (also
+    /// NaN) or whose `q` is not below one (also NaN) is zero, as the scalar code returns. For
+    /// `0 <= r < 1` the kernel's polynomial `(2r - 3) r^2 + 1` is what `kernel` computes (at
+    /// `r = 0` it is exactly one, `kernel`'s value there).
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn weights_sse2(&self, x: [f32; 3], n: [f32; 3]) -> ([f32; 4], u32) {
+        use std::arch::x86_64::{
+            _mm_add_ps, _mm_and_ps, _mm_cmpgt_ps, _mm_cmplt_ps, _mm_load_ps, _mm_movemask_ps,
+            _mm_mul_ps, _mm_set1_ps, _mm_setzero_ps, _mm_sqrt_ps, _mm_store_ps, _mm_sub_ps,
+        };
+        // SAFETY: SSE and SSE2 are part of every x86-64 CPU (the target's baseline), and each
+        // `[f32; 4]` field of `Leaf` (16-byte aligned, `repr(C)`, every field 16 bytes) is
+        // 16-byte aligned, as `_mm_load_ps` requires; `w` is 16-byte aligned for the store.
+        unsafe {
+            let (nx, ny, nz) = (
+                _mm_load_ps(self.nx.as_ptr()),
+                _mm_load_ps(self.ny.as_ptr()),
+                _mm_load_ps(self.nz.as_ptr()),
+            );
+            let c = _mm_add_ps(
+                _mm_add_ps(
+                    _mm_mul_ps(_mm_set1_ps(n[0]), nx),
+                    _mm_mul_ps(_mm_set1_ps(n[1]), ny),
+                ),
+                _mm_mul_ps(_mm_set1_ps(n[2]), nz),
+            );
+            let inv = _mm_load_ps(self.inv_radius.as_ptr());
+            let v0 = _mm_mul_ps(
+                _mm_sub_ps(_mm_set1_ps(x[0]), _mm_load_ps(self.px.as_ptr())),
+                inv,
+            );
+            let v1 = _mm_mul_ps(
+                _mm_sub_ps(_mm_set1_ps(x[1]), _mm_load_ps(self.py.as_ptr())),
+                inv,
+            );
+            let v2 = _mm_mul_ps(
+                _mm_sub_ps(_mm_set1_ps(x[2]), _mm_load_ps(self.pz.as_ptr())),
+                inv,
+            );
+            let vn = _mm_add_ps(
+                _mm_add_ps(_mm_mul_ps(v0, nx), _mm_mul_ps(v1, ny)),
+                _mm_mul_ps(v2, nz),
+            );
+            let vv = _mm_add_ps(
+                _mm_add_ps(_mm_mul_ps(v0, v0), _mm_mul_ps(v1, v1)),
+                _mm_mul_ps(v2, v2),
+            );
+            let q = _mm_add_ps(vv, _mm_mul_ps(_mm_mul_ps(_mm_set1_ps(SQUASH), vn), vn));
+            let zero = _mm_setzero_ps();
+            let one = _mm_set1_ps(1.0);
+            let inside = _mm_and_ps(_mm_cmpgt_ps(c, zero), _mm_cmplt_ps(q, one));
+            let r = _mm_sqrt_ps(q);
+            let k = _mm_add_ps(
+                _mm_mul_ps(
+                    _mm_mul_ps(
+                        _mm_sub_ps(_mm_mul_ps(_mm_set1_ps(2.0), r), _mm_set1_ps(3.0)),
+                        r,
+                    ),
+                    r,
+                ),
+                one,
+            );
+            let w = _mm_and_ps(inside, _mm_mul_ps(_mm_mul_ps(k, c), c));
+            let positive = _mm_movemask_ps(_mm_cmpgt_ps(w, zero)) as u32;
+            let mut out = Aligned([0.0; 4]);
+            _mm_store_ps(out.0.as_mut_ptr(), w);
+            (out.0, positive)
+        }
     }
 }
+
+/// Four floats on a 16-byte boundary.
+#[cfg(target_arch = "x86_64")]
+#[repr(C, align(16))]
+struct Aligned([f32; 4]);
 
 /// The list of one cell (see [`SenderCells::cell_at`]).
 #[derive(Clone, Copy)]
@@ -135,7 +279,8 @@ impl<'a> SenderCells<'a> {
                 max_abs: 0.0,
                 dims: [1; 3],
                 cells: Vec::new(),
-                items: Vec::new(),
+                leaves: Vec::new(),
+                leaf_of_node: Vec::new(),
             };
         }
         let finest = b.level_range(levels.max(1) - 1);
@@ -177,9 +322,27 @@ impl<'a> SenderCells<'a> {
             max_abs,
             dims,
             cells: (0..count).map(|_| OnceLock::new()).collect(),
-            items: ib.trees[..levels]
+            leaves: ib.trees[..levels]
                 .iter()
-                .map(|t| t.items.iter().map(|&j| Item::new(b, j)).collect())
+                .map(|t| {
+                    (0..t.node_count())
+                        .filter(|&node| t.node_count[node] > 0)
+                        .map(|node| Leaf::new(b, t, node))
+                        .collect()
+                })
+                .collect(),
+            leaf_of_node: ib.trees[..levels]
+                .iter()
+                .map(|t| {
+                    let mut next = 0u32;
+                    (0..t.node_count())
+                        .map(|node| {
+                            let at = next;
+                            next += u32::from(t.node_count[node] > 0);
+                            at
+                        })
+                        .collect()
+                })
                 .collect(),
         }
     }
@@ -223,8 +386,7 @@ impl<'a> SenderCells<'a> {
         n: [f32; 3],
         mut f: impl FnMut(usize, f32),
     ) -> f32 {
-        let tree = &self.ib.trees[l];
-        let items = &self.items[l];
+        let leaves = &self.leaves[l];
         let start = if l == 0 {
             cell.levels
         } else {
@@ -233,21 +395,17 @@ impl<'a> SenderCells<'a> {
         let end = cell.levels + cell.list[l] as usize;
         let mut sum = 0.0f32;
         for &entry in &cell.list[start..end] {
-            let node = (entry & 0xffff_ffff) as usize;
-            if !tree.node_contains(node, x) {
+            let leaf = &leaves[(entry & 0xffff_ffff) as usize];
+            if !leaf.contains(x) {
                 continue;
             }
-            let first = tree.node_first[node] as usize;
-            let mut mask = entry >> 32;
+            let (w, positive) = leaf.weights(x, n);
+            let mut mask = (entry >> 32) as u32 & positive;
             while mask != 0 {
                 let k = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
-                let item = &items[first + k];
-                let w = item.weight(x, n);
-                if w > 0.0 {
-                    sum += w;
-                    f(item.j as usize, w);
-                }
+                sum += w[k];
+                f(leaf.j[k] as usize, w[k]);
             }
         }
         sum
@@ -307,7 +465,7 @@ impl<'a> SenderCells<'a> {
                     }
                 }
                 if mask != 0 {
-                    out.push(node as u64 | mask << 32);
+                    out.push(self.leaf_of_node[l][node as usize] as u64 | mask << 32);
                 }
             }
             out[l] = (out.len() - self.levels) as u64;
@@ -457,6 +615,73 @@ mod tests {
         // Outside every support and for NaN: no cell.
         assert!(cells.cell_at([100.0, 0.0, 0.0]).is_none());
         assert!(cells.cell_at([f32::NAN, 0.0, 0.0]).is_none());
+    }
+
+    #[test]
+    fn a_leaf_weighs_its_points_as_the_kernel_does_bit_for_bit() {
+        // Every leaf of three levels against points near and inside the supports, on and off
+        // the surfaces, with normals facing and turned away, and NaN: the side-by-side weights
+        // are the scalar ones and `kernel::weight`'s, bit for bit, and the positive mask marks
+        // exactly the positive ones.
+        let ib = basis();
+        let b = &ib.basis;
+        let mut state = 7u32;
+        let mut rnd = || {
+            state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (state >> 8) as f32 / (1u32 << 24) as f32
+        };
+        let mut positive_seen = 0usize;
+        for tree in &ib.trees {
+            for node in (0..tree.node_count()).filter(|&k| tree.node_count[k] > 0) {
+                let leaf = Leaf::new(b, tree, node);
+                let first = tree.node_first[node] as usize;
+                let count = tree.node_count[node] as usize;
+                for q in 0..40 {
+                    let c = leaf.j[q % count] as usize;
+                    let p = b.positions[c];
+                    let r = b.radii[c];
+                    let mut x: [f32; 3] =
+                        std::array::from_fn(|a| p[a] + (rnd() - 0.5) * 2.0 * r * 1.1);
+                    let mut n = glam::Vec3::new(rnd() - 0.5, rnd() - 0.5, rnd() - 0.5)
+                        .normalize()
+                        .to_array();
+                    match q % 8 {
+                        0 => n = b.normals[c],
+                        1 => x = p,
+                        2 => x[1] = f32::NAN,
+                        3 => n[0] = f32::NAN,
+                        _ => {}
+                    }
+                    let (got, positive) = leaf.weights(x, n);
+                    let (scalar, scalar_positive) = leaf.weights_scalar(x, n);
+                    assert_eq!(
+                        got.map(f32::to_bits),
+                        scalar.map(f32::to_bits),
+                        "{node} {q}"
+                    );
+                    assert_eq!(positive, scalar_positive);
+                    for (k, &g) in got.iter().enumerate() {
+                        let want = if k < count {
+                            let j = tree.items[first + k] as usize;
+                            assert_eq!(leaf.j[k] as usize, j);
+                            mlt_format::kernel::weight(
+                                x,
+                                n,
+                                b.positions[j],
+                                b.normals[j],
+                                b.radii[j],
+                            )
+                        } else {
+                            0.0
+                        };
+                        assert_eq!(g.to_bits(), want.to_bits(), "{node} {q} {k}");
+                        assert_eq!(positive >> k & 1 == 1, want > 0.0);
+                        positive_seen += usize::from(want > 0.0);
+                    }
+                }
+            }
+        }
+        assert!(positive_seen > 1000, "{positive_seen}");
     }
 
     #[test]
