@@ -4,13 +4,15 @@
 //! A uniform grid covers the bounding box of every sender leaf. A cell's list holds, per sender
 //! level, the leaves of that level's R-tree whose boxes overlap the cell (slightly enlarged), in
 //! the tree's depth-first order. At a point `x` of the cell, [`SenderCells::for_each_weight`]
-//! tests `x` against each listed leaf's box and evaluates the weights of the leaves that contain
-//! it, the four points of a leaf side by side (SSE2 on x86-64) from a copy of the leaf laid out
-//! for that. An inner node's box is the exact union of its items' boxes, so it contains every leaf
-//! box below it: the leaves an R-tree query enters are exactly those whose own box contains
-//! `x`, visited in depth-first order. The list therefore yields the same senders with the same
-//! weights in the same order as [`IndexedBasis::for_each_weight`], and the Shepard sums (Eq. 2)
-//! and the accumulated links are bit-identical.
+//! keeps the weights of the listed leaves whose box contains `x`. The four points of a leaf are
+//! weighed side by side (SSE2 on x86-64) from a copy of the leaf laid out for that, and the box
+//! test and the weights' signs become masks: a data-dependent branch per leaf and per point
+//! cost more than weighing every listed leaf. An inner node's box is the exact union of its
+//! items' boxes, so it contains every leaf box below it: the leaves an R-tree query enters are
+//! exactly those whose own box contains `x`, visited in depth-first order. The list therefore
+//! yields the same senders with the same weights in the same order as
+//! [`IndexedBasis::for_each_weight`], and the Shepard sums (Eq. 2) and the accumulated links are
+//! bit-identical.
 //!
 //! Lists are built on first use (a hit in the cell), so only cells on surfaces that rays reach
 //! cost memory; the grid's size is capped.
@@ -112,10 +114,14 @@ impl Leaf {
         leaf
     }
 
-    /// Whether the leaf's box contains `x` (`RTree::node_contains`: false for NaN).
+    /// Whether the leaf's box contains `x` (`RTree::node_contains`: false for NaN), as a
+    /// mask of all lanes or none, without a branch.
     #[inline(always)]
-    fn contains(&self, x: [f32; 3]) -> bool {
-        (0..3).all(|a| x[a] >= self.lo[a] && x[a] <= self.hi[a])
+    fn contains_mask(&self, x: [f32; 3]) -> u32 {
+        let inside = (0..3).fold(true, |all, a| {
+            all & (x[a] >= self.lo[a]) & (x[a] <= self.hi[a])
+        });
+        0u32.wrapping_sub(u32::from(inside))
     }
 
     /// The weights `mlt_format::kernel::weight(x, n, x_j, n_j, r_j)` (Eq. 8) of the four
@@ -396,11 +402,8 @@ impl<'a> SenderCells<'a> {
         let mut sum = 0.0f32;
         for &entry in &cell.list[start..end] {
             let leaf = &leaves[(entry & 0xffff_ffff) as usize];
-            if !leaf.contains(x) {
-                continue;
-            }
             let (w, positive) = leaf.weights(x, n);
-            let mut mask = (entry >> 32) as u32 & positive;
+            let mut mask = (entry >> 32) as u32 & positive & leaf.contains_mask(x);
             while mask != 0 {
                 let k = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
