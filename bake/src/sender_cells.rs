@@ -19,7 +19,7 @@
 
 use std::sync::OnceLock;
 
-use mlt_format::kernel::F_SQUASH;
+use mlt_format::kernel::SQUASH;
 use mlt_format::rtree::LEAF_SIZE;
 use mlt_format::shepard::MIN_WEIGHT_SUM;
 use mlt_format::{Basis, IndexedBasis, RTree};
@@ -63,9 +63,9 @@ pub struct SenderCells<'a> {
 #[derive(Clone, Copy, Debug)]
 #[repr(C, align(16))]
 struct Leaf {
-    /// The box's lower corner, the fourth lane `-inf` (contains every coordinate).
+    /// The box's lower and upper corners (the fourth lane is padding, which keeps every
+    /// field 16 bytes).
     lo: [f32; 4],
-    /// The box's upper corner, the fourth lane `+inf`.
     hi: [f32; 4],
     px: [f32; 4],
     py: [f32; 4],
@@ -82,16 +82,13 @@ struct Leaf {
 // A leaf's points fill the four lanes of `Leaf`.
 const _: () = assert!(LEAF_SIZE == 4);
 
-/// `2 F + F^2` of Eq. 10's squashed distance, as `mlt_format::kernel` computes it.
-const SQUASH: f32 = 2.0 * F_SQUASH + F_SQUASH * F_SQUASH;
-
 impl Leaf {
     /// Leaf node `node` of `tree` over the points of `b`.
     fn new(b: &Basis, tree: &RTree, node: usize) -> Leaf {
         let (lo, hi) = (tree.node_min[node], tree.node_max[node]);
         let mut leaf = Leaf {
-            lo: [lo[0], lo[1], lo[2], f32::NEG_INFINITY],
-            hi: [hi[0], hi[1], hi[2], f32::INFINITY],
+            lo: [lo[0], lo[1], lo[2], 0.0],
+            hi: [hi[0], hi[1], hi[2], 0.0],
             px: [0.0; 4],
             py: [0.0; 4],
             pz: [0.0; 4],
@@ -141,33 +138,17 @@ impl Leaf {
         }
     }
 
-    /// [`Leaf::weights`] one lane at a time.
+    /// [`Leaf::weights`] one lane at a time ([`mlt_format::kernel::weight_inv_radius`]).
     #[cfg(any(test, not(target_arch = "x86_64")))]
     #[inline(always)]
     fn weights_scalar(&self, x: [f32; 3], n: [f32; 3]) -> ([f32; 4], u32) {
         let mut w = [0.0f32; 4];
         let mut positive = 0u32;
         for (k, wk) in w.iter_mut().enumerate() {
+            let p = [self.px[k], self.py[k], self.pz[k]];
             let nj = [self.nx[k], self.ny[k], self.nz[k]];
-            let c = n[0] * nj[0] + n[1] * nj[1] + n[2] * nj[2];
-            if c.is_nan() || c <= 0.0 {
-                continue;
-            }
-            let inv = self.inv_radius[k];
-            let v = [
-                (x[0] - self.px[k]) * inv,
-                (x[1] - self.py[k]) * inv,
-                (x[2] - self.pz[k]) * inv,
-            ];
-            let vn = v[0] * nj[0] + v[1] * nj[1] + v[2] * nj[2];
-            let q = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) + SQUASH * vn * vn;
-            if q >= 1.0 || q.is_nan() {
-                continue;
-            }
-            *wk = mlt_format::kernel::kernel(q.sqrt()) * c * c;
-            if *wk > 0.0 {
-                positive |= 1 << k;
-            }
+            *wk = mlt_format::kernel::weight_inv_radius(x, n, p, nj, self.inv_radius[k]);
+            positive |= u32::from(*wk > 0.0) << k;
         }
         (w, positive)
     }
@@ -182,12 +163,12 @@ impl Leaf {
     #[inline(always)]
     fn weights_sse2(&self, x: [f32; 3], n: [f32; 3]) -> ([f32; 4], u32) {
         use std::arch::x86_64::{
-            _mm_add_ps, _mm_and_ps, _mm_cmpgt_ps, _mm_cmplt_ps, _mm_load_ps, _mm_movemask_ps,
-            _mm_mul_ps, _mm_set1_ps, _mm_setzero_ps, _mm_sqrt_ps, _mm_store_ps, _mm_sub_ps,
+            __m128, _mm_add_ps, _mm_and_ps, _mm_cmpgt_ps, _mm_cmplt_ps, _mm_load_ps,
+            _mm_movemask_ps, _mm_mul_ps, _mm_set1_ps, _mm_setzero_ps, _mm_sqrt_ps, _mm_sub_ps,
         };
         // SAFETY: SSE and SSE2 are part of every x86-64 CPU (the target's baseline), and each
         // `[f32; 4]` field of `Leaf` (16-byte aligned, `repr(C)`, every field 16 bytes) is
-        // 16-byte aligned, as `_mm_load_ps` requires; `w` is 16-byte aligned for the store.
+        // 16-byte aligned, as `_mm_load_ps` requires.
         unsafe {
             let (nx, ny, nz) = (
                 _mm_load_ps(self.nx.as_ptr()),
@@ -239,17 +220,11 @@ impl Leaf {
             );
             let w = _mm_and_ps(inside, _mm_mul_ps(_mm_mul_ps(k, c), c));
             let positive = _mm_movemask_ps(_mm_cmpgt_ps(w, zero)) as u32;
-            let mut out = Aligned([0.0; 4]);
-            _mm_store_ps(out.0.as_mut_ptr(), w);
-            (out.0, positive)
+            // `__m128` and `[f32; 4]` are the same 16 bytes, lane `k` at float `k`.
+            (std::mem::transmute::<__m128, [f32; 4]>(w), positive)
         }
     }
 }
-
-/// Four floats on a 16-byte boundary.
-#[cfg(target_arch = "x86_64")]
-#[repr(C, align(16))]
-struct Aligned([f32; 4]);
 
 /// The list of one cell (see [`SenderCells::cell_at`]).
 #[derive(Clone, Copy)]
@@ -501,7 +476,7 @@ impl<'a> SenderCells<'a> {
         } else {
             0.0
         };
-        let squash = (2.0 * F_SQUASH + F_SQUASH * F_SQUASH) as f64;
+        let squash = SQUASH as f64;
         let bound = (dist2 + squash * vn_min * vn_min).sqrt();
         let magnitude = c.iter().fold(self.max_abs, |m, &v| m.max(v.abs())) as f64;
         bound <= 1.01 * r + 16.0 * f32::EPSILON as f64 * magnitude
@@ -573,15 +548,19 @@ mod tests {
         IndexedBasis::build(b).unwrap()
     }
 
+    /// A fixed stream of uniform numbers in `[0, 1)` (a linear congruential generator).
+    fn uniform(mut state: u32) -> impl FnMut() -> f32 {
+        move || {
+            state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (state >> 8) as f32 / (1u32 << 24) as f32
+        }
+    }
+
     #[test]
     fn cells_yield_the_rtree_senders_and_weights_in_its_order() {
         let ib = basis();
         let cells = SenderCells::new(&ib, 3);
-        let mut state = 99u32;
-        let mut rnd = || {
-            state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-            (state >> 8) as f32 / (1u32 << 24) as f32
-        };
+        let mut rnd = uniform(99u32);
         let mut nonzero = 0usize;
         for q in 0..3000 {
             // Points on the planes and sphere (where hits are), and anywhere in space.
@@ -628,11 +607,7 @@ mod tests {
         // exactly the positive ones.
         let ib = basis();
         let b = &ib.basis;
-        let mut state = 7u32;
-        let mut rnd = || {
-            state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-            (state >> 8) as f32 / (1u32 << 24) as f32
-        };
+        let mut rnd = uniform(7u32);
         let mut positive_seen = 0usize;
         for tree in &ib.trees {
             for node in (0..tree.node_count()).filter(|&k| tree.node_count[k] > 0) {

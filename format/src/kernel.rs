@@ -8,6 +8,10 @@
 /// normal than in the tangent plane.
 pub const F_SQUASH: f32 = 2.0;
 
+/// `2 F_squash + F_squash^2`, the factor of Eq. 10's squashed distance:
+/// `|v + F_squash <v, n_j> n_j|^2 = |v|^2 + SQUASH <v, n_j>^2` for a unit `n_j`.
+pub const SQUASH: f32 = 2.0 * F_SQUASH + F_SQUASH * F_SQUASH;
+
 #[inline(always)]
 pub(crate) fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
@@ -43,7 +47,7 @@ pub fn kernel(r: f32) -> f32 {
 pub fn squashed_distance_sq(x: [f32; 3], xj: [f32; 3], nj: [f32; 3]) -> f32 {
     let v = sub(x, xj);
     let vn = dot(v, nj);
-    dot(v, v) + (2.0 * F_SQUASH + F_SQUASH * F_SQUASH) * vn * vn
+    dot(v, v) + SQUASH * vn * vn
 }
 
 /// The anisotropic distance `dist_j(x)` of Eq. 10.
@@ -60,15 +64,24 @@ pub fn squashed_distance(x: [f32; 3], xj: [f32; 3], nj: [f32; 3]) -> f32 {
 /// scene's scale (no underflow of `r_j^2` for radii below 1e-19, no overflow above 1e19).
 #[inline(always)]
 pub fn weight(x: [f32; 3], n: [f32; 3], xj: [f32; 3], nj: [f32; 3], rj: f32) -> f32 {
-    let c = dot(n, nj);
-    if !(c > 0.0 && rj > 0.0 && rj.is_finite()) {
+    if !(rj > 0.0 && rj.is_finite()) {
         return 0.0;
     }
-    let inv = 1.0 / rj;
+    weight_inv_radius(x, n, xj, nj, 1.0 / rj)
+}
+
+/// [`weight`] given the reciprocal of the radius, `inv_rj = 1 / r_j`, for callers that keep
+/// it (the same bits as [`weight`] for that radius); `inv_rj` must be positive and finite.
+#[inline(always)]
+pub fn weight_inv_radius(x: [f32; 3], n: [f32; 3], xj: [f32; 3], nj: [f32; 3], inv_rj: f32) -> f32 {
+    let c = dot(n, nj);
+    if c.is_nan() || c <= 0.0 {
+        return 0.0;
+    }
     let d = sub(x, xj);
-    let v = [d[0] * inv, d[1] * inv, d[2] * inv];
+    let v = [d[0] * inv_rj, d[1] * inv_rj, d[2] * inv_rj];
     let vn = dot(v, nj);
-    let q = dot(v, v) + (2.0 * F_SQUASH + F_SQUASH * F_SQUASH) * vn * vn;
+    let q = dot(v, v) + SQUASH * vn * vn;
     if q >= 1.0 || q.is_nan() {
         return 0.0;
     }
