@@ -5,11 +5,10 @@ use std::path::PathBuf;
 /// Everything that can go wrong reading, writing or validating a baked file.
 #[derive(Debug, thiserror::Error)]
 pub enum FormatError {
-    #[error("{path}: {source}")]
+    #[error("{path}: {error}")]
     Io {
         path: PathBuf,
-        #[source]
-        source: std::io::Error,
+        error: std::io::Error,
     },
     #[error("{path}: not a baked light-transport file (bad magic bytes)")]
     BadMagic { path: PathBuf },

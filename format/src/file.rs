@@ -239,10 +239,10 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), FormatError> {
     })
 }
 
-fn io_err(path: &Path, source: std::io::Error) -> FormatError {
+fn io_err(path: &Path, error: std::io::Error) -> FormatError {
     FormatError::Io {
         path: path.to_path_buf(),
-        source,
+        error,
     }
 }
 
@@ -302,9 +302,9 @@ impl BakedFile {
     /// Memory-maps `path` and validates magic, version, length, checksums and the section
     /// table. Section contents are validated when read.
     pub fn open(path: &Path) -> Result<BakedFile, FormatError> {
-        let file = fs::File::open(path).map_err(|source| FormatError::Io {
+        let file = fs::File::open(path).map_err(|error| FormatError::Io {
             path: path.to_path_buf(),
-            source,
+            error,
         })?;
         // SAFETY: the mapping is read-only and private to this process. Its contents can only
         // change under us if another process writes to this very file while it is mapped;
@@ -314,9 +314,9 @@ impl BakedFile {
         // in place between open and read gives an error, not undefined behaviour in our code.
         // A file truncated in place is different: reading a mapped page past its new end
         // raises SIGBUS, which ends the process (no writer here truncates in place).
-        let map = unsafe { Mmap::map(&file) }.map_err(|source| FormatError::Io {
+        let map = unsafe { Mmap::map(&file) }.map_err(|error| FormatError::Io {
             path: path.to_path_buf(),
-            source,
+            error,
         })?;
         let header = container::parse_header(path, &map)?;
         Ok(BakedFile {

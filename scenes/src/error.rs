@@ -7,11 +7,10 @@ use std::path::PathBuf;
 #[derive(thiserror::Error, Debug)]
 pub enum SceneError {
     /// The file could not be opened or read.
-    #[error("{}: {source}", path.display())]
+    #[error("{}: {error}", path.display())]
     Io {
         path: PathBuf,
-        #[source]
-        source: std::io::Error,
+        error: std::io::Error,
     },
 
     /// The file extension is not one of `.toml`, `.obj`, `.gltf`, `.glb`.
@@ -70,10 +69,10 @@ pub enum SceneError {
 
 impl SceneError {
     /// Shorthand for [`SceneError::Io`].
-    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+    pub fn io(path: impl Into<PathBuf>, error: std::io::Error) -> Self {
         SceneError::Io {
             path: path.into(),
-            source,
+            error,
         }
     }
 }

@@ -153,6 +153,17 @@ fn missing_source_names_the_mesh_file() {
     let e = load_manifest(&path).expect_err("missing mesh");
     assert!(matches!(e, SceneError::Io { .. }), "{e}");
     assert!(e.to_string().contains("nothere.obj"), "{e}");
+    // The message carries the operating system's reason itself and exposes no source, so
+    // that a binary printing the chain of causes does not print the reason twice.
+    let SceneError::Io { error, .. } = &e else {
+        unreachable!()
+    };
+    assert_eq!(error.kind(), std::io::ErrorKind::NotFound);
+    assert!(
+        e.to_string().ends_with(&format!("nothere.obj: {error}")),
+        "{e}"
+    );
+    assert!(std::error::Error::source(&e).is_none(), "{e}");
 }
 
 #[test]

@@ -23,10 +23,10 @@ pub struct Probe {
 /// What went wrong reading probes.
 #[derive(Debug, thiserror::Error)]
 pub enum ProbeError {
-    #[error("{path}: {source}")]
+    #[error("{path}: {error}")]
     Io {
         path: std::path::PathBuf,
-        source: std::io::Error,
+        error: std::io::Error,
     },
     #[error("{path}:{line}: {message}")]
     Row {

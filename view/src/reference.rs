@@ -65,10 +65,10 @@ pub enum ReferenceError {
     Spp(u32),
     #[error("max_bounces must be at least 1")]
     Bounces,
-    #[error("{path}: {source}")]
+    #[error("{path}: {error}")]
     Io {
         path: PathBuf,
-        source: std::io::Error,
+        error: std::io::Error,
     },
     #[error(transparent)]
     Image(#[from] ImageError),
@@ -561,9 +561,9 @@ pub fn reference_json(r: &ReferenceImages) -> serde_json::Value {
 /// Writes `reference_{direct,indirect,final,noise}.exr`, `reference.png` (the final image,
 /// tone-mapped) and `reference.json` into `dir` (created if missing).
 pub fn write_reference(dir: &Path, r: &ReferenceImages) -> Result<(), ReferenceError> {
-    std::fs::create_dir_all(dir).map_err(|source| ReferenceError::Io {
+    std::fs::create_dir_all(dir).map_err(|error| ReferenceError::Io {
         path: dir.to_path_buf(),
-        source,
+        error,
     })?;
     r.direct.write_exr(&dir.join(REFERENCE_FILES[0]))?;
     r.indirect.write_exr(&dir.join(REFERENCE_FILES[1]))?;
