@@ -69,7 +69,10 @@
 //! projection of the direct light (0.6 %) and the receiver basis (0.4 %) together, and unseen
 //! at the receiver points themselves, where the kept rows reconstruct about what was gathered.
 //! Levels 4 and finer keep Fig. 5 alone: there the budget keeps ten to twenty times the links
-//! for little more light.
+//! for little more light. Nor does the finest level of a file keep it away from contacts (a
+//! level 2 or 3 that is the finest, in a basis of three or four levels): no finer level
+//! corrects its overshoot between its points, which showed as dark pixels on a three-level
+//! Cornell box.
 //!
 //! **Levels 2 and 3 keep their links to finer senders by a budget**
 //! ([`keeps_finer_budget`]). A link to a finer sender is how a receiver sees the emission's
@@ -154,12 +157,15 @@ pub fn keeps_finer_budget(level: usize) -> bool {
     matches!(level, 2 | 3)
 }
 
-/// Whether a receiver of `level` keeps its sub-epsilon links to coarsest senders by a budget
-/// (module docs): at level 1 away from contacts, at levels 2 and 3 everywhere.
-pub fn keeps_budget(level: usize, contact: bool) -> bool {
+/// Whether a receiver of `level`, in a basis of `levels` levels, keeps its sub-epsilon links to
+/// coarsest senders by a budget (module docs): at level 1 away from contacts, at level 2 at
+/// contacts, and at levels 2 and 3 away from contacts too unless the level is the finest (no
+/// finer level would correct the budget's overshoot between its points).
+pub fn keeps_budget(level: usize, contact: bool, levels: usize) -> bool {
     match level {
         1 => !contact,
-        2 | 3 => true,
+        2 if contact => true,
+        2 | 3 => level + 1 < levels,
         _ => false,
     }
 }
@@ -501,18 +507,11 @@ fn process(
         }
     }
     // The budgets (module docs): of the links Fig. 5 dropped, keep all but the smallest whose
-    // norms sum to at most the budget; those to coarsest senders at levels 1 and 2 (contacts),
-    // those to finer senders at levels 2 and 3.
+    // norms sum to at most the budget; those to coarsest senders at levels 1 to 3
+    // ([`keeps_budget`]), those to finer senders at levels 2 and 3.
     let contact = counts.near as f32 > CONTACT_FRACTION * counts.rays as f32;
     let budgets = [
-        // Not at the finest level: no finer level corrects a budget's overshoot between its
-        // points (dark pixels in a three-level box's test, `view/tests/flat_basis.rs`).
-        (
-            keeps_budget(level, contact)
-                && (level == 1 || level == 2 && contact || level + 1 < ib.levels()),
-            false,
-            eps,
-        ),
+        (keeps_budget(level, contact, ib.levels()), false, eps),
         (keeps_finer_budget(level), true, eps * FINER_BUDGET_FACTOR),
     ];
     for (on, finer, budget) in budgets {

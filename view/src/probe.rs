@@ -23,11 +23,6 @@ pub struct Probe {
 /// What went wrong reading probes.
 #[derive(Debug, thiserror::Error)]
 pub enum ProbeError {
-    #[error("{path}: {error}")]
-    Io {
-        path: std::path::PathBuf,
-        error: std::io::Error,
-    },
     #[error("{path}:{line}: {message}")]
     Row {
         path: std::path::PathBuf,
