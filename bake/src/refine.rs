@@ -97,8 +97,9 @@
 //! links; levels 4 and finer, with 3-10x level 3's receivers, were not tried.
 //!
 //! Refinement also sums, under uniform emission at the coarsest senders, the single-bounce light
-//! of the links it drops against that of the links it keeps ([`RefineStats::dropped_share`]),
-//! and per row the same under the file's light (`drop_estimate`, stored in the file).
+//! of the links it drops at receivers whose children are not refined against that of all the
+//! links it keeps ([`RefineStats::dropped_share`]), and per row the same under the file's light
+//! (`drop_estimate`, stored in the file).
 //!
 //! When any link of a receiver passed the test, its children are queued for the next level. The
 //! receivers of a level are processed in parallel; each one's result depends only on its index,
@@ -278,7 +279,10 @@ pub struct RefineStats {
     /// processed receiver `i` of level `l`, the signed irradiance along its normal,
     /// `sum_j n_i . T_ij` over coarsest senders `j`, times the area its basis function covers
     /// (`R_l^2`, the level's disk radius squared), so that summed over the levels it
-    /// approximates the integral of the hierarchical expansion. See
+    /// approximates the integral of the hierarchical expansion. The dropped sum counts only
+    /// the receivers whose children were not refined: a refined receiver's dropped links
+    /// reappear in its children's differences (Eq. 17), which keep them or drop them again,
+    /// so counting them at both levels would count the same light twice. See
     /// [`RefineStats::dropped_share`].
     pub kept_mass: [f64; 3],
     pub dropped_mass: [f64; 3],
@@ -290,7 +294,8 @@ impl RefineStats {
     /// dropped links would have taken light away). Dropped links of finer receivers are
     /// differences from the coarser levels' reconstruction (Eq. 17): where they share a sign
     /// the expansion is biased there, and the sum says by how much; where they only carry
-    /// detail they cancel. Receivers that refinement never processed are not in it.
+    /// detail they cancel. Receivers that refinement never processed are not in it, nor the
+    /// dropped links of refined receivers, which their children's differences carry on.
     pub fn dropped_share(&self) -> f64 {
         (0..3)
             .map(|c| {
@@ -385,12 +390,17 @@ pub fn refine(
             stats.unsupported_hits += p.counts.unsupported;
             kept += p.links.len() as u64;
             let area = (b.disk_radii[l] as f64).powi(2);
+            // A refined receiver's dropped links are in its children's differences (Eq. 17),
+            // which keep them or drop them again: only a leaf's dropped links stay lost.
+            let refined = p.refine && l + 1 < b.levels();
             for c in 0..3 {
-                stats.dropped_mass[c] += area * p.dropped[c];
+                if !refined {
+                    stats.dropped_mass[c] += area * p.dropped[c];
+                }
                 stats.kept_mass[c] += area * p.kept[c];
             }
             t.push_row(i, &p.links, p.counts.unsupported, p.gathered);
-            if p.refine && l + 1 < b.levels() {
+            if refined {
                 next.extend_from_slice(children.row(i as usize));
             }
         }

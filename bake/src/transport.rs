@@ -31,10 +31,6 @@ pub struct TransportOutput {
     /// Levels of the basis to store: finer levels without a link of S are left out (see
     /// [`trim_levels`]); the links already index only the stored points.
     pub levels_stored: usize,
-    /// The share of the single-bounce light refinement dropped at epsilon
-    /// ([`RefineStats::dropped_share`]); `None` when T came from shards, which do not record
-    /// it.
-    pub refinement_drop: Option<f64>,
 }
 
 /// How long the Neumann series `S = T + T^2 + ...` runs (section 3.2).
@@ -239,15 +235,12 @@ pub fn compute_transport(
     let model = Light::from_desc(light).map_err(|e| BakeError::InvalidParameter(e.to_string()))?;
     let (mut t, rstats, refine_s) = refine_t(ib, caster, &params, light, None, obs)?;
     trace_level0_bounces(ib, caster, &params, policy, &mut t, obs);
-    let dropped = rstats.dropped_share();
     let check = CheckScene {
         caster,
         camera,
         light: &model,
     };
-    let mut out = finish_transport(ib, t, rstats, params, policy, refine_s, Some(check), obs)?;
-    out.refinement_drop = Some(dropped);
-    Ok(out)
+    finish_transport(ib, t, rstats, params, policy, refine_s, Some(check), obs)
 }
 
 /// The warning when the links of T dropped at epsilon carry more than `tolerance` of the
@@ -571,7 +564,6 @@ pub fn finish_transport(
         timings,
         warnings,
         levels_stored: p.levels_stored,
-        refinement_drop: None,
     })
 }
 
