@@ -289,17 +289,29 @@ fn check_at_camera(
         "light checked at the camera",
         t0.elapsed().as_secs_f64(),
         &format!(
-            "{}x{} primary rays, {} paths each: the indirect light {:+.2} % +- {:.2} % short of the traced one (the first bounce {:+.2} % +- {:.2} %)",
+            "{}x{} primary rays, {} paths each: the indirect light {:.2} % +- {:.2} % {} than the traced one (the first bounce {:.2} % +- {:.2} % {})",
             c.width,
             c.height,
             c.rays,
-            100.0 * c.share_all,
+            100.0 * c.share_all.abs(),
             100.0 * c.std_error_all,
-            100.0 * c.share,
-            100.0 * c.std_error
+            darker_or_brighter(c.share_all),
+            100.0 * c.share.abs(),
+            100.0 * c.std_error,
+            darker_or_brighter(c.share),
         ),
     );
     Some(c)
+}
+
+/// How a signed shortfall (traced minus baked, over traced) reads: "darker" when the baked
+/// light is short, "brighter" when it is over.
+fn darker_or_brighter(share: f64) -> &'static str {
+    if share >= 0.0 {
+        "darker"
+    } else {
+        "brighter"
+    }
 }
 
 /// The share of the indirect light at the scene's camera above which the bake warns: the 3 %
