@@ -385,11 +385,11 @@ pub fn refine(
             .collect();
         let mut next = Vec::new();
         let mut kept = 0u64;
+        let area = (b.disk_radii[l] as f64).powi(2);
         for (&i, p) in queue.iter().zip(&done) {
             stats.rays += p.counts.rays;
             stats.unsupported_hits += p.counts.unsupported;
             kept += p.links.len() as u64;
-            let area = (b.disk_radii[l] as f64).powi(2);
             // A refined receiver's dropped links are in its children's differences (Eq. 17),
             // which keep them or drop them again: only a leaf's dropped links stay lost.
             let refined = p.refine && l + 1 < b.levels();

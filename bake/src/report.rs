@@ -185,6 +185,16 @@ pub fn transport_table(t: &TransportMeta, timings: Option<&TransportTimings>) ->
     o
 }
 
+/// How a signed shortfall of the baked light (reference minus baked, over the reference)
+/// reads after "too": "dark" when the baked light is short, "bright" when it is over.
+pub(crate) fn too_dark_or_bright(shortfall: f64) -> &'static str {
+    if shortfall >= 0.0 {
+        "dark"
+    } else {
+        "bright"
+    }
+}
+
 fn signed_pct(x: f64) -> String {
     if x > 0.0 {
         format!("+{}", pct(x))
@@ -261,7 +271,6 @@ pub fn estimate_table(
         pct(e.bounce_truncation),
         pct(e.quantisation)
     );
-    let too = |share: f64| if share >= 0.0 { "dark" } else { "bright" };
     let total = pct(estimate_total(r, drop, check));
     match (check, drop) {
         (Some(c), _) => {
@@ -270,7 +279,7 @@ pub fn estimate_table(
                 "error est.    {total} of the indirect light = {parts} + indirect light at the camera {} +- {} (signed: the image is that much too {}; traced through {}x{} primary rays with {} paths each; the first bounce alone {} +- {}: T's dropped links, the direct light's projection and the basis)",
                 signed_pct(c.share_all),
                 pct(c.std_error_all),
-                too(c.share_all),
+                too_dark_or_bright(c.share_all),
                 c.width,
                 c.height,
                 c.rays,
@@ -292,7 +301,7 @@ pub fn estimate_table(
                 "error est.    {total} of the indirect light = {parts} + links of T dropped {} (signed, under the {}: the image is that much too {}); the basis' reconstruction error is not in it",
                 signed_pct(d.share),
                 d.emission,
-                too(d.share)
+                too_dark_or_bright(d.share)
             );
         }
         (None, None) => {

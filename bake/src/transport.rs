@@ -21,6 +21,7 @@ use crate::neumann::{series, spectral_radius, BounceReceivers, Row, Rows, Series
 use crate::observer::Observer;
 use crate::path_bounces::{level0_bounces, PathSettings};
 use crate::refine::{refine, ReceiverLinks, RefineSettings, RefineStats};
+use crate::report::too_dark_or_bright;
 
 /// The result, with what the user should be told.
 pub struct TransportOutput {
@@ -252,7 +253,7 @@ pub fn refinement_warning(drop: &RefinementDrop, epsilon: f32, tolerance: f64) -
             "links of T dropped at epsilon {epsilon} would have {} about {:.1} % of the single-bounce light under the file's light (the image is that much too {}); a smaller --epsilon keeps them",
             if d > 0.0 { "added" } else { "taken away" },
             100.0 * d.abs(),
-            if d > 0.0 { "dark" } else { "bright" }
+            too_dark_or_bright(d)
         )
     })
 }
@@ -289,29 +290,19 @@ fn check_at_camera(
         "light checked at the camera",
         t0.elapsed().as_secs_f64(),
         &format!(
-            "{}x{} primary rays, {} paths each: the indirect light {:.2} % +- {:.2} % {} than the traced one (the first bounce {:.2} % +- {:.2} % {})",
+            "{}x{} primary rays, {} paths each: the indirect light {:.2} % +- {:.2} % too {} against the traced one (the first bounce {:.2} % +- {:.2} % too {})",
             c.width,
             c.height,
             c.rays,
             100.0 * c.share_all.abs(),
             100.0 * c.std_error_all,
-            darker_or_brighter(c.share_all),
+            too_dark_or_bright(c.share_all),
             100.0 * c.share.abs(),
             100.0 * c.std_error,
-            darker_or_brighter(c.share),
+            too_dark_or_bright(c.share),
         ),
     );
     Some(c)
-}
-
-/// How a signed shortfall (traced minus baked, over traced) reads: "darker" when the baked
-/// light is short, "brighter" when it is over.
-fn darker_or_brighter(share: f64) -> &'static str {
-    if share >= 0.0 {
-        "darker"
-    } else {
-        "brighter"
-    }
 }
 
 /// The share of the indirect light at the scene's camera above which the bake warns: the 3 %
@@ -328,7 +319,7 @@ pub fn camera_warning(c: &CameraCheck) -> Option<String> {
             "at the scene's camera the indirect light is about {:.1} % (+- {:.1} %) too {} against traced paths (the first bounce alone {:+.1} %: T's dropped links, the direct light's projection and the basis; the rest is the later bounces)",
             100.0 * d.abs(),
             100.0 * c.std_error_all,
-            if d > 0.0 { "dark" } else { "bright" },
+            too_dark_or_bright(d),
             100.0 * c.share
         )
     })
