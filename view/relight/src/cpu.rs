@@ -20,7 +20,7 @@
 //!    light is negligible; then, when [`CpuRelighter::fine_bounces`] is set, the finer
 //!    receivers' bounces 2 and later, from the indirect light at every sender point through
 //!    their whole rows ([`FineEmission::Senders`]; with [`CpuRelighter::lagged_feedback`]
-//!    the previous frame's, in the same pass over the links as `S e`) or from the level-0
+//!    the previous frame's, added to `e` for the finer rows in the one pass of `S e`) or from the level-0
 //!    coefficients through their links to level-0 senders ([`FineBounceOp`]), and,
 //!    with [`CpuRelighter::bounce_feedback`], the finer receivers' bounce light re-emitted
 //!    through `S`'s level-0 rows ([`BounceFeedbackOp`]: `i` as the fixed point of
@@ -179,20 +179,23 @@ pub struct CpuRelighter<'a> {
     /// that is the feedback's correction, which the level-0 rows of `S` take (the fine
     /// bounces then come with the frame's own); without it, when the fine bounces re-emit
     /// the bounce light from every sender point ([`FineEmission::Senders`], files whose
-    /// level-0 rows were traced as paths), that emission `y`, which the finer rows take:
-    /// `S e` and `S_fine y` share one read of the links instead of two. A moving light's
-    /// lagged part is one frame late; when the light stops, the next call for it relights
-    /// once more with its own (with the feedback a further step of the fixed point, nearer to
-    /// it than the exact single step; with the fine bounces the exact frame) and later calls
-    /// reuse that frame. The first frame, and the first after [`CpuRelighter::reset_lag`],
-    /// is computed exactly. Off by default.
+    /// level-0 rows were traced as paths), that emission `y`, which the finer rows (`T`'s)
+    /// take added to `e`: one product `T_fine (e + y)` where the exact frame has two, `S e`
+    /// and then `T_fine y` of its `S e`. The lagged `y` is the emission of the previous
+    /// frame's whole `i`, the finer receivers' later bounces included, which the exact frame's
+    /// `y` (of `S e`) leaves out: frame after frame the finer rows iterate toward the fixed
+    /// point `i_fine = T_fine (e + y(i))`, the fuller solution (a step shrinks the distance to
+    /// it about fivefold; on the small Cornell box of the tests the fixed point lies 3.5 %
+    /// relative RMS from the exact frame, its mean 0.5 % above). A moving light's lagged part
+    /// is one frame late; when the light stops, the next call for it relights once more with
+    /// its own (a further step of either fixed point, nearer to it than the exact frame) and
+    /// later calls reuse that frame. The first frame, and the first after
+    /// [`CpuRelighter::reset_lag`], is computed exactly. Off by default.
     pub lagged_feedback: bool,
     /// The previous frame's feedback correction (lagged feedback).
     feedback_prev: Option<Vec<f32>>,
     /// The previous frame's fine-bounce emission `y` (lagged fine bounces).
     fine_prev: Option<Vec<f32>>,
-    /// `S e` of the frame (lagged fine bounces; reused between frames).
-    se: Vec<f32>,
     /// False after a frame that took a correction computed under another light: the same
     /// light again is then relit once more (with its own correction) instead of reused.
     lag_settled: bool,
@@ -316,7 +319,6 @@ impl<'a> CpuRelighter<'a> {
             lagged_feedback: false,
             feedback_prev: None,
             fine_prev: None,
-            se: Vec::new(),
             lag_settled: true,
             lag_light: None,
             frame: Frame::default(),
@@ -356,30 +358,17 @@ impl<'a> CpuRelighter<'a> {
     }
 
     /// Whether [`CpuRelighter::lagged_feedback`] saves work per frame with the current
-    /// settings. With the bounce-light feedback it saves the feedback's own product (always).
-    /// With the fine bounces from every sender point it saves the second read of the finer
-    /// receivers' links ([`ReceiverLinks::link_bytes`] each: a slot and nine half floats) but
-    /// writes `S e` apart from the frame's coefficients (36 bytes per point, counted twice: a
-    /// written line is read first): it pays where the first outweighs the second. Measured (`view timings
-    /// --feedback-lag on|off`, two threads): textured Sponza 87 MB against 11 MB, 22 ms lagged
-    /// against 27 ms; the built-in Cornell box 6 MB against 26 MB, 8.5-8.8 ms against 7.4-7.6;
-    /// its bright variant 15 MB against 26 MB, 9.7-10.2 ms against 8.0-8.3. False where nothing
-    /// is lagged.
+    /// settings: with the bounce-light feedback it saves the feedback's own product, with the
+    /// fine bounces from every sender point the finer rows' second product (`T_fine y` apart
+    /// from `S e`); both whenever the links are receiver-major (files written by the bake).
+    /// False where nothing is lagged.
     pub fn lag_pays(&self) -> bool {
         // The conditions under which `relight` lags either part.
         let n = self.ib.basis.len();
         let receiver_major = self.links.receivers.to_native() as usize == n;
-        if !receiver_major {
-            return false;
-        }
-        if self.bounce_feedback > 0 {
-            return true;
-        }
-        if !(self.fine_bounces && self.fine_emission == FineEmission::Senders) {
-            return false;
-        }
-        let m = self.ib.basis.level_range(0).len();
-        self.receiver_links.link_bytes() * self.receiver_links.links_from(m) > 2 * LINK_DIM * 4 * n
+        receiver_major
+            && (self.bounce_feedback > 0
+                || (self.fine_bounces && self.fine_emission == FineEmission::Senders))
     }
 
     /// Forgets the lagged bounce light: the next frame is computed exactly.
@@ -489,26 +478,29 @@ impl<'a> CpuRelighter<'a> {
 
     /// The surface nearest the light: the least height of the light over the tangent plane
     /// of a sender point whose support disk, and the surface, lie under it, with that point's
-    /// normal (`None`
-    /// when there is none). Ties go to the lower index, so the result does not depend on the
-    /// order of the reduction.
+    /// normal (`None` when there is none). Ties go to the lower index, so the result does not
+    /// depend on the order of the reduction. The surface test, a query of the finest level,
+    /// is made only for the points under the light in order of height, until one passes.
     fn clearance(&self, light: &Light) -> Option<(f32, Vec3)> {
         let b = &self.ib.basis;
         let senders = b.level_offsets[self.sender_levels] as usize;
-        let nearest = (0..senders)
+        // The light must lie over the point's support disk (cheap to test at every point)...
+        let mut under: Vec<(f32, usize)> = (0..senders)
             .into_par_iter()
             .filter_map(|j| {
                 let d = light.position - Vec3::from(b.positions[j]);
                 let h = d.dot(Vec3::from(b.normals[j]));
-                // The light must lie over the point's support disk, and over the surface.
-                let n = Vec3::from(b.normals[j]);
-                (h > 0.0
-                    && d.length_squared() - h * h < b.radii[j] * b.radii[j]
-                    && self.support.on_surface(light.position - n * h, n))
-                .then_some((h, j))
+                (h > 0.0 && d.length_squared() - h * h < b.radii[j] * b.radii[j]).then_some((h, j))
             })
-            .min_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        nearest.map(|(h, j)| (h, Vec3::from(b.normals[j])))
+            .collect();
+        // ...and over the surface (a query): the first such point in order of height.
+        under.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        under.into_iter().find_map(|(h, j)| {
+            let n = Vec3::from(b.normals[j]);
+            self.support
+                .on_surface(light.position - n * h, n)
+                .then_some((h, n))
+        })
     }
 
     /// The fraction of shadow rays from sender point `j` that reach the light, and the number
@@ -618,7 +610,8 @@ impl Relight for CpuRelighter<'_> {
         let prev = if lag { self.feedback_prev.take() } else { None };
         // The fine bounces from every sender point, through the finer rows (T's: links to
         // every sender level), from the bounce light `y` at every sender point pull-pushed
-        // onto the sender levels: the frame's own, or with the lag the last frame's.
+        // onto the sender levels: the frame's own (from `S e`), or with the lag the last
+        // frame's (from its whole `i`), which the finer rows take with `e`.
         let fine_senders = self.fine_bounces
             && self.fine_emission == FineEmission::Senders
             && self.bounce_feedback == 0
@@ -639,17 +632,10 @@ impl Relight for CpuRelighter<'_> {
             self.receiver_links
                 .apply_split(&e, &e_first, m, threshold, &mut i)
         } else if let Some(y) = &fine_prev {
-            // `S e` (for the next frame's `y`) and `S e + S_fine y` in one pass.
-            self.se.resize(n, 0.0);
-            self.receiver_links.apply_with_added_from(
-                &e,
-                threshold,
-                y,
-                self.skip_threshold(y),
-                m,
-                &mut self.se,
-                &mut i,
-            )
+            // `T_fine (e + y)` on the finer rows, `S_0 e` on the level-0 rows, in one pass.
+            let e_sum: Vec<f32> = e.iter().zip(y).map(|(a, b)| a + b).collect();
+            self.receiver_links
+                .apply_split(&e_sum, &e, m, threshold, &mut i)
         } else if receiver_major {
             self.receiver_links.apply(&e, threshold, &mut i)
         } else {
@@ -658,13 +644,16 @@ impl Relight for CpuRelighter<'_> {
             self.links.apply(&e, threshold, &mut i)
         };
         if fine_prev.is_some() {
-            self.fine_prev = Some(self.feedback.emission(&self.pull_push, &self.se));
+            // The next frame's `y`: this frame's bounce light, its finer receivers' later
+            // bounces included.
+            self.fine_prev = Some(self.feedback.emission(&self.pull_push, &i));
         } else if fine_senders {
             let y = self.feedback.emission(&self.pull_push, &i);
             self.receiver_links
                 .apply_add_from(&y, self.skip_threshold(&y), m, &mut i);
             if fine_lag {
-                self.fine_prev = Some(y);
+                // The next frame's `y`, as a lagged frame's: from the whole `i`.
+                self.fine_prev = Some(self.feedback.emission(&self.pull_push, &i));
             }
         } else if self.fine_bounces {
             self.fine_bounce_op().apply(&mut i);

@@ -181,20 +181,15 @@ impl Groups {
         4 * self.offsets.len() + self.slots.bytes() + 2 * GROUP * LINK_DIM * self.values.len()
     }
 
-    /// The sums of group `g`'s eight rows over the weights `pick(&w[slot])`, each row's the
+    /// The sums of group `g`'s eight rows over the weights `w[slot]`, each row's the
     /// bits of [`row_sum`] over its own links.
     #[inline(always)]
-    fn sums<const F16C: bool, W>(
-        &self,
-        g: usize,
-        w: &[W],
-        pick: impl Fn(&W) -> &[f32; LINK_DIM],
-    ) -> [[f32; LINK_DIM]; GROUP] {
+    fn sums<const F16C: bool>(&self, g: usize, w: &[[f32; LINK_DIM]]) -> [[f32; LINK_DIM]; GROUP] {
         let k = self.offsets[g] as usize..self.offsets[g + 1] as usize;
         let values = &self.values[k.clone()];
         match &self.slots {
-            Slots::Narrow(s) => group_sums::<F16C, u16, W>(&s[k], values, w, pick),
-            Slots::Wide(s) => group_sums::<F16C, u32, W>(&s[k], values, w, pick),
+            Slots::Narrow(s) => group_sums::<F16C, u16>(&s[k], values, w),
+            Slots::Wide(s) => group_sums::<F16C, u32>(&s[k], values, w),
         }
     }
 }
@@ -424,68 +419,6 @@ impl ReceiverLinks {
         self.apply_impl::<true>(e, None, m, threshold, self.receivers as usize, i)
     }
 
-    /// `S e` and `S e + S y` in one pass over the links, where `y` reaches the rows of
-    /// receivers `m` and above only: `se` gets [`ReceiverLinks::apply`]'s bits on `e`, and `i`
-    /// those of `apply` on `e` followed by [`ReceiverLinks::apply_add_from`] on `y` (each
-    /// row's two sums formed apart, then added). The links are read once for both, so this
-    /// costs little more than `S e` alone (the product is bound by reading the links). Senders
-    /// at most `threshold` (of `e`) or `threshold_y` (of `y`) in every channel are skipped.
-    /// Returns the number of senders of `e` used. Panics unless `se` and `i` hold 9 floats per
-    /// receiver.
-    #[allow(clippy::too_many_arguments)]
-    pub fn apply_with_added_from(
-        &self,
-        e: &[f32],
-        threshold: f32,
-        y: &[f32],
-        threshold_y: f32,
-        m: usize,
-        se: &mut [f32],
-        i: &mut [f32],
-    ) -> usize {
-        use rayon::prelude::*;
-        let n = self.receivers as usize;
-        assert!(se.len() == n * LINK_DIM && i.len() == n * LINK_DIM);
-        let mut used = 0;
-        let w = self.sender_weights(e, threshold, &mut used);
-        let both = pair_weights(&w, &self.sender_weights(y, threshold_y, &mut 0));
-        let rows = self.receiver_ids.len();
-        let parts = self.chunk_parts(rows, n, se).into_iter();
-        let parts_i = self.chunk_parts(rows, n, i).into_iter();
-        #[cfg(target_arch = "x86_64")]
-        let f16c = has_f16c_lanes();
-        parts
-            .zip(parts_i)
-            .collect::<Vec<_>>()
-            .into_par_iter()
-            .for_each(|((c, first, out_se), (_, _, out_i))| {
-                #[cfg(target_arch = "x86_64")]
-                if f16c {
-                    // SAFETY: this CPU has AVX2 and F16C (checked above), the only requirement
-                    // for calling a function compiled with them.
-                    unsafe { self.dual_chunk_f16c((&w, &both, m), c, rows, first, out_se, out_i) };
-                    return;
-                }
-                self.dual_chunk::<false>((&w, &both, m), c, rows, first, out_se, out_i);
-            });
-        used
-    }
-
-    /// Splits `buf` (9 floats per point of `0..n`) into the ranges of the parallel tasks over
-    /// the first `rows` linked receivers: chunk `c` owns the points from its first receiver to
-    /// the next chunk's first (the first chunk from point 0, the last to `n`), as `(c, first
-    /// point, values)`. The points past the last chunk's range are zeroed (none are linked).
-    fn chunk_parts<'b>(
-        &self,
-        rows: usize,
-        n: usize,
-        buf: &'b mut [f32],
-    ) -> Vec<(usize, usize, &'b mut [f32])> {
-        let (parts, rest) = self.split_chunks(rows, n, buf);
-        rest.fill(0.0);
-        parts
-    }
-
     /// The number of parallel tasks over the first `rows` rows.
     fn tasks(&self, rows: usize) -> usize {
         self.task_starts.split_last().map_or(0, |(_, starts)| {
@@ -498,8 +431,10 @@ impl ReceiverLinks {
         self.task_starts[c] as usize..(self.task_starts[c + 1] as usize).min(rows)
     }
 
-    /// [`ReceiverLinks::chunk_parts`] without touching the points past the chunks, which are
-    /// returned.
+    /// Splits `buf` (9 floats per point of `0..n`) into the ranges of the parallel tasks over
+    /// the first `rows` linked receivers: chunk `c` owns the points from its first receiver to
+    /// the next chunk's first (the first chunk from point 0, the last to `n`), as `(c, first
+    /// point, values)`; the points past the last chunk's range (none are linked) are returned.
     #[allow(clippy::type_complexity)]
     fn split_chunks<'b>(
         &self,
@@ -643,7 +578,7 @@ impl ReceiverLinks {
                 if !points().any(takes) {
                     continue;
                 }
-                let sums = self.groups.sums::<F16C, _>(q / GROUP, w, |w| w);
+                let sums = self.groups.sums::<F16C>(q / GROUP, w);
                 for (j, point) in points().enumerate() {
                     if takes(point) {
                         write(out, point - first, &sums[j]);
@@ -660,81 +595,6 @@ impl ReceiverLinks {
             let w = if point < m { w_first } else { w_rest };
             let acc = self.row_sum::<F16C>(self.links_of(q), w);
             write(out, point - first, &acc);
-        }
-    }
-
-    /// [`ReceiverLinks::dual_chunk`] compiled with AVX2 and F16C.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,f16c")]
-    fn dual_chunk_f16c(
-        &self,
-        w: DualWeights<'_>,
-        c: usize,
-        rows: usize,
-        first: usize,
-        out_se: &mut [f32],
-        out_i: &mut [f32],
-    ) {
-        self.dual_chunk::<true>(w, c, rows, first, out_se, out_i);
-    }
-
-    /// The receivers of chunk `c` for [`ReceiverLinks::apply_with_added_from`]: `out_se` gets
-    /// each row's sum over the weights of `e` (`w.0`, or the first of each pair `w.1` in the
-    /// rows that read both), `out_i` that sum plus, for receivers from `w.2` on, the sum over
-    /// the weights of `y` (the second of each pair) of the same links (formed apart, then
-    /// added). Both
-    /// start at point `first` and are overwritten. `F16C` as in [`ReceiverLinks::chunk`]
-    /// ([`row_sums_f16c`]).
-    #[inline(always)]
-    fn dual_chunk<const F16C: bool>(
-        &self,
-        (w, both, m): DualWeights<'_>,
-        c: usize,
-        rows: usize,
-        first: usize,
-        out_se: &mut [f32],
-        out_i: &mut [f32],
-    ) {
-        out_se.fill(0.0);
-        out_i.fill(0.0);
-        let mut write = |point: usize, acc: &[f32; LINK_DIM], acc_y: &[f32; LINK_DIM]| {
-            let r = point - first;
-            out_se[r * LINK_DIM..(r + 1) * LINK_DIM].copy_from_slice(acc);
-            let o = &mut out_i[r * LINK_DIM..(r + 1) * LINK_DIM];
-            for d in 0..LINK_DIM {
-                o[d] = acc[d] + acc_y[d];
-            }
-        };
-        let qs = self.task_rows(c, rows);
-        let mut q = qs.start;
-        // The grouped rows (as in `chunk`): `S e` for all, `S y` where a row from `m` on is.
-        while q < qs.end.min(self.groups.rows) {
-            let group = q..(q + GROUP).min(qs.end);
-            let sums = self.groups.sums::<F16C, _>(q / GROUP, w, |w| w);
-            let sums_y = group
-                .clone()
-                .any(|q| self.receiver_ids[q] as usize >= m)
-                .then(|| self.groups.sums::<F16C, _>(q / GROUP, both, |b| &b[1]));
-            for (j, q) in group.enumerate() {
-                let point = self.receiver_ids[q] as usize;
-                let zero = [0.0; LINK_DIM];
-                let acc_y = match &sums_y {
-                    Some(y) if point >= m => &y[j],
-                    _ => &zero,
-                };
-                write(point, &sums[j], acc_y);
-            }
-            q += GROUP;
-        }
-        for q in q..qs.end {
-            let point = self.receiver_ids[q] as usize;
-            let k = self.links_of(q);
-            let (acc, acc_y) = if point < m {
-                (self.row_sum::<F16C>(k, w), [0.0; LINK_DIM])
-            } else {
-                self.row_sums::<F16C>(k, both)
-            };
-            write(point, &acc, &acc_y);
         }
     }
 
@@ -758,35 +618,6 @@ impl ReceiverLinks {
             Slots::Wide(s) => row_sum::<F16C, u32>(&s[k], values, w),
         }
     }
-
-    /// [`row_sums`] of links `k` (a row's), whatever the width of their slots.
-    #[inline(always)]
-    fn row_sums<const F16C: bool>(
-        &self,
-        k: std::ops::Range<usize>,
-        both: &[Pair],
-    ) -> ([f32; LINK_DIM], [f32; LINK_DIM]) {
-        let values = &self.values[k.clone()];
-        match &self.slots {
-            Slots::Narrow(s) => row_sums::<F16C, u16>(&s[k], values, both),
-            Slots::Wide(s) => row_sums::<F16C, u32>(&s[k], values, both),
-        }
-    }
-}
-
-/// The weights of [`ReceiverLinks::dual_chunk`]: per sender slot those of `e`, those of `e`
-/// and `y` side by side ([`Pair`]), and the first receiver `y` reaches. (Those of `e` also
-/// apart: the level-0 rows, most of the links in a closed room, read only them, and twice the
-/// footprint would leave the cache.)
-type DualWeights<'a> = (&'a [[f32; LINK_DIM]], &'a [Pair], usize);
-
-/// A sender's weights for two vectors side by side (72 bytes): a link of a row that sums over
-/// both reads them from one place instead of two arrays.
-type Pair = [[f32; LINK_DIM]; 2];
-
-/// The weights `w` and `w_y` of each sender side by side.
-fn pair_weights(w: &[[f32; LINK_DIM]], w_y: &[[f32; LINK_DIM]]) -> Vec<Pair> {
-    w.iter().zip(w_y).map(|(&a, &b)| [a, b]).collect()
 }
 
 /// One row's sum `sum_k w[slot_k] * value_k`, element by element in link order, each term a
@@ -802,8 +633,8 @@ fn row_sum<const F16C: bool, S: Slot>(
 ) -> [f32; LINK_DIM] {
     #[cfg(target_arch = "x86_64")]
     if F16C {
-        // SAFETY: `F16C` is set only by `chunk_f16c` and `dual_chunk_f16c`, which run only
-        // on CPUs with AVX2 and F16C (checked by their callers).
+        // SAFETY: `F16C` is set only by `chunk_f16c`, which runs only on CPUs with AVX2 and
+        // F16C (checked by its callers).
         return unsafe { row_sum_f16c(slots, values, w) };
     }
     let mut acc = [0.0f32; LINK_DIM];
@@ -816,49 +647,24 @@ fn row_sum<const F16C: bool, S: Slot>(
     acc
 }
 
-/// [`row_sum`] of the same links over two weight vectors at once (one read of the links).
-#[inline(always)]
-fn row_sums<const F16C: bool, S: Slot>(
-    slots: &[S],
-    values: &[[u16; LINK_DIM]],
-    both: &[Pair],
-) -> ([f32; LINK_DIM], [f32; LINK_DIM]) {
-    #[cfg(target_arch = "x86_64")]
-    if F16C {
-        // SAFETY: as in `row_sum`.
-        return unsafe { row_sums_f16c(slots, values, both) };
-    }
-    let (mut acc, mut acc_y) = ([0.0f32; LINK_DIM], [0.0f32; LINK_DIM]);
-    for (&slot, v) in slots.iter().zip(values) {
-        let [ws, wy] = &both[slot.index()];
-        let v = decode(v);
-        for d in 0..LINK_DIM {
-            acc[d] += ws[d] * v[d];
-            acc_y[d] += wy[d] * v[d];
-        }
-    }
-    (acc, acc_y)
-}
-
 /// The sums of a group's eight rows ([`Groups`]) over the weights `w`: per group sender (its
 /// slot and its rows' values, element `d` of row `j` at `d * GROUP + j`), each row's element
 /// gets one product then one sum in `f32`, in ascending sender order, as in [`row_sum`]. With
 /// `F16C` (as in `row_sum`) by [`group_sums_f16c`]: the same bits.
 #[inline(always)]
-fn group_sums<const F16C: bool, S: Slot, W>(
+fn group_sums<const F16C: bool, S: Slot>(
     slots: &[S],
     values: &[[u16; GROUP * LINK_DIM]],
-    w: &[W],
-    pick: impl Fn(&W) -> &[f32; LINK_DIM],
+    w: &[[f32; LINK_DIM]],
 ) -> [[f32; LINK_DIM]; GROUP] {
     #[cfg(target_arch = "x86_64")]
     if F16C {
         // SAFETY: as in `row_sum`.
-        return unsafe { group_sums_f16c(slots, values, w, pick) };
+        return unsafe { group_sums_f16c(slots, values, w) };
     }
     let mut acc = [[0.0f32; LINK_DIM]; GROUP];
     for (&slot, v) in slots.iter().zip(values) {
-        let ws = pick(&w[slot.index()]);
+        let ws = &w[slot.index()];
         for d in 0..LINK_DIM {
             for j in 0..GROUP {
                 acc[j][d] += ws[d] * f16::from_bits(v[d * GROUP + j]).to_f32();
@@ -873,16 +679,15 @@ fn group_sums<const F16C: bool, S: Slot, W>(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,f16c")]
 #[inline]
-fn group_sums_f16c<S: Slot, W>(
+fn group_sums_f16c<S: Slot>(
     slots: &[S],
     values: &[[u16; GROUP * LINK_DIM]],
-    w: &[W],
-    pick: impl Fn(&W) -> &[f32; LINK_DIM],
+    w: &[[f32; LINK_DIM]],
 ) -> [[f32; LINK_DIM]; GROUP] {
     use std::arch::x86_64::*;
     let mut acc = [_mm256_setzero_ps(); LINK_DIM];
     for (&slot, v) in slots.iter().zip(values) {
-        let ws = pick(&w[slot.index()]);
+        let ws = &w[slot.index()];
         for d in 0..LINK_DIM {
             // SAFETY: `v` holds 72 `u16`: the 16 bytes from element `8 d` (d < 9) are in
             // bounds (an unaligned load).
@@ -970,36 +775,6 @@ fn row_sum_f16c<S: Slot>(
         acc9 = _mm_add_ps(acc9, _mm_mul_ps(w9, v9));
     }
     unpack(acc8, acc9)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,f16c")]
-#[inline]
-fn row_sums_f16c<S: Slot>(
-    slots: &[S],
-    values: &[[u16; LINK_DIM]],
-    both: &[Pair],
-) -> ([f32; LINK_DIM], [f32; LINK_DIM]) {
-    use std::arch::x86_64::*;
-    let (mut acc8, mut acc9) = (_mm256_setzero_ps(), _mm_setzero_ps());
-    let (mut y8, mut y9) = (_mm256_setzero_ps(), _mm_setzero_ps());
-    for (&slot, v) in slots.iter().zip(values) {
-        let [w, wy] = &both[slot.index()];
-        let (v8, v9, w8, w9) = lanes(v, w);
-        // SAFETY: `wy` holds 9 `f32`: the 32 bytes from its start and the 16 from its sixth
-        // element are in bounds.
-        let (wy8, wy4) = unsafe {
-            (
-                _mm256_loadu_ps(wy.as_ptr()),
-                _mm_loadu_ps(wy.as_ptr().add(5)),
-            )
-        };
-        acc8 = _mm256_add_ps(acc8, _mm256_mul_ps(w8, v8));
-        acc9 = _mm_add_ps(acc9, _mm_mul_ps(w9, v9));
-        y8 = _mm256_add_ps(y8, _mm256_mul_ps(wy8, v8));
-        y9 = _mm_add_ps(y9, _mm_mul_ps(wy4, v9));
-    }
-    (unpack(acc8, acc9), unpack(y8, y9))
 }
 
 /// Whether this CPU has AVX2 and F16C, which the products' `_f16c` kernels are compiled for.
@@ -1121,7 +896,6 @@ mod tests {
         assert_eq!(wide.bytes(), rl.bytes() + 2 * rl.link_count());
         assert_eq!((rl.link_bytes(), wide.link_bytes()), (20, 22));
         let e = sample_emission();
-        let y: Vec<f32> = e.iter().map(|v| 0.5 - v).collect();
         for links in [&rl, &wide] {
             let mut want = vec![0.0f32; 14 * 9];
             validated(&bytes).apply(&e, 0.0, &mut want);
@@ -1129,12 +903,6 @@ mod tests {
             links.apply(&e, 0.0, &mut got);
             assert_eq!(bits(&got), bits(&want));
         }
-        let dual = |links: &ReceiverLinks| {
-            let (mut se, mut i) = (vec![f32::NAN; 14 * 9], vec![f32::NAN; 14 * 9]);
-            links.apply_with_added_from(&e, 0.0, &y, 0.0, 4, &mut se, &mut i);
-            (bits(&se), bits(&i))
-        };
-        assert_eq!(dual(&rl), dual(&wide));
     }
 
     #[test]
@@ -1157,7 +925,6 @@ mod tests {
                     .collect()
             };
             let w = weights(0.0);
-            let both = pair_weights(&w, &weights(1.0));
             // Overflowing sums may give NaNs, whose payloads depend on operand order.
             let same = |a: [f32; LINK_DIM], b: [f32; LINK_DIM]| {
                 a.iter()
@@ -1173,15 +940,8 @@ mod tests {
                 for k in (0..values.len() - 3).step_by(3) {
                     let (sl, vl) = (&slots[k..k + 3], &values[k..k + 3]);
                     // SAFETY: this CPU has AVX2 and F16C (checked above).
-                    let (fast, fast2) =
-                        unsafe { (row_sum_f16c(sl, vl, &w), row_sums_f16c(sl, vl, &both)) };
-                    let slow2 = row_sums::<false, _>(sl, vl, &both);
+                    let fast = unsafe { row_sum_f16c(sl, vl, &w) };
                     assert!(same(fast, row_sum::<false, _>(sl, vl, &w)), "{fast:?}");
-                    assert!(
-                        same(fast2.0, slow2.0) && same(fast2.1, slow2.1),
-                        "{fast2:?}"
-                    );
-                    assert!(same(fast2.0, fast));
                 }
             }
         }
@@ -1206,11 +966,11 @@ mod tests {
                 .enumerate()
                 .map(|(u, c)| std::array::from_fn(|k| if present(u, k % GROUP) { c[k] } else { 0 }))
                 .collect();
-            let slow = group_sums::<false, u16, _>(&slots, &values, &w, |w| w);
+            let slow = group_sums::<false, u16>(&slots, &values, &w);
             #[cfg(target_arch = "x86_64")]
             if has_f16c_lanes() {
                 // SAFETY: this CPU has AVX2 and F16C (checked).
-                let fast = unsafe { group_sums_f16c(&slots, &values, &w, |w| w) };
+                let fast = unsafe { group_sums_f16c(&slots, &values, &w) };
                 assert_eq!(
                     fast.map(|r| r.map(f32::to_bits)),
                     slow.map(|r| r.map(f32::to_bits))
@@ -1260,59 +1020,6 @@ mod tests {
             rl.apply_add_from(&e, 0.0, m, &mut got);
             assert_eq!(bits(&got[..m * 9]), bits(&start[..m * 9]), "below {m}");
             assert_eq!(bits(&got[m * 9..]), bits(&all[m * 9..]), "from {m}");
-        }
-    }
-
-    #[test]
-    fn the_dual_product_gives_s_e_and_the_bits_of_s_e_then_the_added_rows() {
-        let bytes = sample_bytes();
-        let a = validated(&bytes);
-        let e = sample_emission();
-        let y: Vec<f32> = e
-            .iter()
-            .enumerate()
-            .map(|(k, v)| 0.3 * v - 0.01 * k as f32)
-            .collect();
-        let plain = ReceiverLinks::build(a);
-        for (t, t_y) in [(0.0, 0.0), (0.5, 0.2)] {
-            let mut se_want = vec![0.0f32; 14 * 9];
-            let used_want = plain.apply(&e, t, &mut se_want);
-            for (rl, m) in presets(a)
-                .iter()
-                .flat_map(|rl| [0, 1, 5, 8, 12, 14].map(|m| (rl, m)))
-            {
-                let mut want = se_want.clone();
-                plain.apply_add_from(&y, t_y, m, &mut want);
-                // Stale values in the outputs are overwritten.
-                let (mut se, mut i) = (vec![7.0f32; 14 * 9], vec![-3.0f32; 14 * 9]);
-                let used = rl.apply_with_added_from(&e, t, &y, t_y, m, &mut se, &mut i);
-                assert_eq!(bits(&se), bits(&se_want), "S e, m {m}");
-                assert_eq!(bits(&i), bits(&want), "S e + S y, m {m}");
-                assert_eq!(used, used_want);
-            }
-        }
-        // The software and F16C kernels agree, on the grouped rows too.
-        #[cfg(target_arch = "x86_64")]
-        for rl in &presets(a) {
-            if !(std::arch::is_x86_feature_detected!("avx2")
-                && std::arch::is_x86_feature_detected!("f16c"))
-            {
-                break;
-            }
-            let w = rl.sender_weights(&e, 0.0, &mut 0);
-            let both = pair_weights(&w, &rl.sender_weights(&y, 0.0, &mut 0));
-            let rows = rl.receiver_ids.len();
-            let run = |f16c: bool| {
-                let (mut se, mut i) = (vec![0.0f32; 14 * 9], vec![0.0f32; 14 * 9]);
-                if f16c {
-                    // SAFETY: the CPU has AVX2 and F16C (checked above).
-                    unsafe { rl.dual_chunk_f16c((&w, &both, 5), 0, rows, 0, &mut se, &mut i) };
-                } else {
-                    rl.dual_chunk::<false>((&w, &both, 5), 0, rows, 0, &mut se, &mut i);
-                }
-                (bits(&se), bits(&i))
-            };
-            assert_eq!(run(true), run(false));
         }
     }
 
@@ -1386,15 +1093,15 @@ mod tests {
                 });
                 assert_eq!(bits(&got), bits(&want), "{threads} threads");
             }
-            // The dual product over the same tasks: `S e`, and `S e` plus the rows from `m`
-            // on (20: inside the last group).
+            // A split product over the same tasks: the rows below `m` (20: inside the last
+            // group) on `e`, the others on `2 e`, which doubles their sums exactly.
+            let e2: Vec<f32> = e.iter().map(|v| 2.0 * v).collect();
             for m in [20, 50] {
-                let (mut se, mut i) = (vec![f32::NAN; want.len()], vec![f32::NAN; want.len()]);
-                rl.apply_with_added_from(&e, 0.0, &e, 0.0, m, &mut se, &mut i);
-                assert_eq!(bits(&se), bits(&want));
-                let mut twice = want.clone();
-                rl.apply_add_from(&e, 0.0, m, &mut twice);
-                assert_eq!(bits(&i), bits(&twice), "m {m}");
+                let mut got = vec![f32::NAN; want.len()];
+                rl.apply_split(&e2, &e, m, 0.0, &mut got);
+                let mut expect = want.clone();
+                expect[m * 9..].iter_mut().for_each(|v| *v *= 2.0);
+                assert_eq!(bits(&got), bits(&expect), "m {m}");
             }
         }
     }
