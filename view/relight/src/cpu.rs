@@ -558,6 +558,12 @@ fn pull_push_points(ib: &IndexedBasis, levels: usize) -> usize {
     ib.basis.level_offsets[levels.min(ib.levels())] as usize
 }
 
+/// `a + b` per element: the emission with a lagged part added, for one side of a split
+/// product.
+fn added(a: &[f32], b: &[f32]) -> Vec<f32> {
+    a.iter().zip(b).map(|(x, y)| x + y).collect()
+}
+
 impl Relight for CpuRelighter<'_> {
     fn flat_basis(&self) -> &FlatBasis {
         &self.flat
@@ -628,14 +634,12 @@ impl Relight for CpuRelighter<'_> {
         let m = self.ib.basis.level_range(0).len();
         let used = if let Some(d) = &prev {
             // The level-0 rows take last frame's correction with the emission.
-            let e_first: Vec<f32> = e.iter().zip(d).map(|(a, b)| a + b).collect();
             self.receiver_links
-                .apply_split(&e, &e_first, m, threshold, &mut i)
+                .apply_split(&e, &added(&e, d), m, threshold, &mut i)
         } else if let Some(y) = &fine_prev {
             // `T_fine (e + y)` on the finer rows, `S_0 e` on the level-0 rows, in one pass.
-            let e_sum: Vec<f32> = e.iter().zip(y).map(|(a, b)| a + b).collect();
             self.receiver_links
-                .apply_split(&e_sum, &e, m, threshold, &mut i)
+                .apply_split(&added(&e, y), &e, m, threshold, &mut i)
         } else if receiver_major {
             self.receiver_links.apply(&e, threshold, &mut i)
         } else {

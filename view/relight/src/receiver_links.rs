@@ -333,12 +333,6 @@ impl ReceiverLinks {
             .map_or(0, |&n| n as usize)
     }
 
-    /// Bytes a product reads per link of the rows kept row by row: its slot and its nine half
-    /// floats (20, or 22 where the slots take 32 bits).
-    pub fn link_bytes(&self) -> usize {
-        self.slots.width() + 2 * LINK_DIM
-    }
-
     /// Heap bytes held.
     pub fn bytes(&self) -> usize {
         4 * (self.sender_ids.len()
@@ -349,14 +343,6 @@ impl ReceiverLinks {
             + self.slots.bytes()
             + 2 * LINK_DIM * self.values.len()
             + self.groups.bytes()
-    }
-
-    /// Links of the rows of receivers `m..`.
-    pub fn links_from(&self, m: usize) -> usize {
-        let q = self.receiver_ids.partition_point(|&r| (r as usize) < m);
-        self.offsets
-            .last()
-            .map_or(0, |&end| (end - self.offsets[q]) as usize)
     }
 
     /// Receivers with at least one link, ascending (the only ones `S e` can light).
@@ -894,7 +880,6 @@ mod tests {
             ..rl.clone()
         };
         assert_eq!(wide.bytes(), rl.bytes() + 2 * rl.link_count());
-        assert_eq!((rl.link_bytes(), wide.link_bytes()), (20, 22));
         let e = sample_emission();
         for links in [&rl, &wide] {
             let mut want = vec![0.0f32; 14 * 9];
