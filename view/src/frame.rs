@@ -60,6 +60,9 @@ impl FrameDriver<'_> {
         redraw: Redraw,
         timed: bool,
     ) -> Result<Drawn<'_>, GpuError> {
+        // The relighter computes the flat coefficients of the functions this view splats.
+        self.relighter
+            .set_view(Some(&self.renderer.frustum(camera)));
         let frame = self.relighter.relight(light);
         let mut flatten_ms = 0.0;
         if redraw != Redraw::WhenRelit || !frame.reused {

@@ -19,4 +19,4 @@ pub mod window;
 
 pub use camera::Camera;
 pub use images::RgbImage;
-pub use mlt_relight::{CpuRelighter, Frame, Light, Relight, StageTimes};
+pub use mlt_relight::{CpuRelighter, Frame, Frustum, Light, Relight, StageTimes};

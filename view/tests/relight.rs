@@ -702,3 +702,96 @@ fn lagged_fine_bounces_share_the_pass_of_s_e_and_iterate_to_the_fixed_point() {
     let a = lagged.relight(&moving_light(20)).i.clone();
     assert_eq!(bits(&a), bits(&exact.relight(&moving_light(20)).i));
 }
+
+/// With a view, the flat coefficients of every flat point whose function may meet it are the
+/// same bits as without one, for fewer rows computed; a view that needs rows the light's
+/// frame lacks has them computed without relighting, and a view it holds reuses the frame.
+#[test]
+fn a_view_flattens_only_what_it_needs_and_the_same_bits() {
+    // Enough flat points for a narrow view to leave most blocks out.
+    let d = temp("view");
+    let f = d.join("cornell.mlt");
+    bake_to(&f, "builtin:cornell", common::small_cornell(6, 16, None));
+    let file = BakedFile::open(&f).unwrap();
+    let ib = file.basis().unwrap();
+    let sender_levels = file.transport_meta().unwrap().unwrap().params.sender_levels as usize;
+    let caster = mlt_scenes::load_scene("builtin:cornell")
+        .unwrap()
+        .build_caster();
+    let lb = file.links_bytes().unwrap().unwrap();
+    let links = file.access_links(&lb).unwrap();
+    let meta = file.meta().unwrap();
+    let light = Light::point(Vec3::new(0.278, 0.5, 0.28), [0.3, 0.25, 0.2]).unwrap();
+    let mut whole = CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, 4).unwrap();
+    let all = whole.relight(&light).clone();
+    let points = whole.flat_basis().len();
+    assert_eq!(all.flat_rows, points);
+    let (lo, hi) = (
+        Vec3::from(meta.scene.bounds_min),
+        Vec3::from(meta.scene.bounds_max),
+    );
+    let file_camera = mlt_view::Camera::from_info(&meta.camera).unwrap();
+    // The file's camera narrowed to a fifth of its field of view, turned toward two corners.
+    let view_of = |target: Vec3| {
+        let mut c = file_camera;
+        c.fovy_deg /= 5.0;
+        c.target = target;
+        mlt_view::Frustum::from_view_proj(&c.reversed_view_proj(c.planes_for_bounds(lo, hi)))
+    };
+    let left = view_of(Vec3::new(lo.x, hi.y, hi.z));
+    let right = view_of(Vec3::new(hi.x, lo.y, hi.z));
+    let fb = whole.flat_basis().clone();
+    let b = &fb.ib.basis;
+    let seen = |f: &mlt_view::Frustum| -> Vec<usize> {
+        (0..points)
+            .filter(|&j| f.meets_sphere(Vec3::from(b.positions[j]), b.radii[j]))
+            .collect()
+    };
+    let same_where_seen = |frame: &mlt_view::Frame, f: &mlt_view::Frustum| {
+        let seen = seen(f);
+        assert!(
+            !seen.is_empty() && seen.len() < points / 2,
+            "{}",
+            seen.len()
+        );
+        for j in seen {
+            let (got, want) = (
+                &frame.flat[j * LINK_DIM..(j + 1) * LINK_DIM],
+                &all.flat[j * LINK_DIM..(j + 1) * LINK_DIM],
+            );
+            assert_eq!(bits(got), bits(want), "flat point {j}");
+        }
+    };
+
+    let mut culled = CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, 4).unwrap();
+    culled.set_view(Some(&left));
+    let frame = culled.relight(&light).clone();
+    assert!(!frame.reused);
+    // Blocks of 128 Morton-ordered rows, dilated twice through `W` for the two sharpening
+    // steps: fewer rows, though far more than the view's own.
+    assert!(frame.flat_rows < points, "{} of {points}", frame.flat_rows);
+    assert_eq!(bits(&frame.i), bits(&all.i));
+    same_where_seen(&frame, &left);
+    // The same view again: nothing recomputed.
+    assert!(culled.relight(&light).reused);
+    // Another view, same light: only step 4 runs.
+    culled.set_view(Some(&right));
+    let frame = culled.relight(&light).clone();
+    assert!(!frame.reused && frame.flat_rows > 0);
+    assert_eq!(frame.times.direct_ms, 0.0);
+    assert_eq!(frame.times.transport_ms, 0.0);
+    same_where_seen(&frame, &right);
+    // No view: every row, as without culling.
+    culled.set_view(None);
+    let frame = culled.relight(&light).clone();
+    assert!(!frame.reused);
+    assert_eq!(frame.flat_rows, points);
+    assert_eq!(bits(&frame.flat), bits(&all.flat));
+    // Culling off: a view changes nothing.
+    let mut off = CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, 4).unwrap();
+    off.view_culling = false;
+    off.set_view(Some(&left));
+    let frame = off.relight(&light);
+    assert_eq!(frame.flat_rows, points);
+    assert_eq!(bits(&frame.flat), bits(&all.flat));
+}

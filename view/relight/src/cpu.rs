@@ -29,7 +29,10 @@
 //!    needs, [`FlatBasis`]) by a precomputed sparse operator ([`FlattenOp`], one row per flat
 //!    point) that holds only the columns of receivers with links, then a few steps of
 //!    iterated Shepard correction `c_{k+1} = c_k + w_k (c_0 - W c_k)` ([`SharpenOp`]) that take
-//!    back most of the flat basis' smoothing.
+//!    back most of the flat basis' smoothing. With a view ([`Relight::set_view`]) only the
+//!    rows of the flat points whose functions may meet it, and those their sharpening reads,
+//!    are computed ([`FlatCulling`]); a view that needs rows the light's frame lacks has them
+//!    computed from the kept `i` without relighting.
 //!
 //! The operators are built once, in [`CpuRelighter::new`] (timed in [`LoadStats`]). When the
 //! light has not moved, nothing is recomputed.
@@ -50,11 +53,13 @@ use crate::bounce_feedback::BounceFeedbackOp;
 use crate::error::RelightError;
 use crate::fine_bounce::FineBounceOp;
 use crate::flatten_op::{FlattenOp, FlattenScratch, SharpenOp, SharpenScratch};
+use crate::frustum::Frustum;
 use crate::light::Light;
 use crate::pull_push_op::PullPushOp;
 use crate::receiver_links::ReceiverLinks;
 use crate::relight::{Frame, Relight, StageTimes};
 use crate::support_average::SupportAverage;
+use crate::view_cull::{FlatCulling, ViewMasks};
 
 /// Steps of the bounce-light feedback a file with the chain of bounces gets by default
 /// ([`CpuRelighter::use_bounce_corrections`]).
@@ -204,6 +209,17 @@ pub struct CpuRelighter<'a> {
     /// Kept apart from `last`, which [`Relight::set_flatten_on_cpu`] forgets to force a
     /// recomputation without making the lagged parts stale.
     lag_light: Option<Light>,
+    /// The view the flat coefficients are for ([`Relight::set_view`]): with one, step 4
+    /// computes only the rows it needs; without, every row.
+    view: Option<Frustum>,
+    /// Built on the first frame with a view; `None` inside where the operators' layout allows
+    /// no culling ([`FlatCulling::build`]).
+    culling: OnceLock<Option<FlatCulling>>,
+    /// The blocks of `frame.flat` that hold the coefficients of `frame`'s light; `None`: all.
+    flat_done: Option<Vec<bool>>,
+    /// Compute step 4 only for the view set with [`Relight::set_view`] (on by default; off,
+    /// every flat point's coefficients are computed whatever the view).
+    pub view_culling: bool,
     frame: Frame,
     last: Option<Light>,
 }
@@ -321,6 +337,10 @@ impl<'a> CpuRelighter<'a> {
             fine_prev: None,
             lag_settled: true,
             lag_light: None,
+            view: None,
+            culling: OnceLock::new(),
+            flat_done: None,
+            view_culling: true,
             frame: Frame::default(),
             last: None,
         })
@@ -399,6 +419,7 @@ impl<'a> CpuRelighter<'a> {
         self.load.sharpen_bytes = sharpen_op.bytes();
         self.flat = flat;
         self.sharpen_op = Some(sharpen_op);
+        self.culling = OnceLock::new();
         Ok(())
     }
 
@@ -564,6 +585,71 @@ fn added(a: &[f32], b: &[f32]) -> Vec<f32> {
     a.iter().zip(b).map(|(x, y)| x + y).collect()
 }
 
+impl CpuRelighter<'_> {
+    /// The blocks step 4 computes for the current view, or `None` for every row (no view,
+    /// culling off, or operators whose layout allows none).
+    fn view_masks(&self) -> Option<ViewMasks> {
+        let view = self.view.as_ref().filter(|_| self.view_culling)?;
+        let op = self.flatten_op.as_ref()?;
+        let sharpen = self.sharpen_op.as_ref();
+        let culling = self
+            .culling
+            .get_or_init(|| FlatCulling::build(&self.flat, op, sharpen))
+            .as_ref()?;
+        let steps = sharpen.filter(|_| self.sharpen).map_or(0, SharpenOp::steps);
+        let m = culling.masks(view, steps);
+        Some(m)
+    }
+
+    /// Whether `frame.flat` holds, for the frame's light, every row the current view needs.
+    fn flat_covers_view(&self) -> bool {
+        let Some(done) = &self.flat_done else {
+            return true;
+        };
+        if self.frame.flat.is_empty() {
+            return true;
+        }
+        match self.view_masks() {
+            Some(masks) => masks.visible.iter().zip(done).all(|(v, d)| !v || *d),
+            None => false,
+        }
+    }
+
+    /// Step 4: `flat` from `i`, on the rows the view needs; returns the rows the flattening
+    /// product computed (0 when the renderer flattens).
+    fn flatten_stage(&mut self, i: &[f32], flat: &mut Vec<f32>) -> usize {
+        let masks = self.view_masks();
+        self.flat_done = None;
+        let mut rows = self.flat.len();
+        match &self.flatten_op {
+            Some(_) if !self.flatten_on_cpu => {
+                flat.clear();
+                return 0;
+            }
+            Some(op) => match &masks {
+                Some(m) => {
+                    op.apply_masked(i, LINK_DIM, flat, &mut self.flatten_scratch, &m.flatten);
+                    rows = m.flatten_rows(self.flat.len());
+                }
+                None => op.apply(i, LINK_DIM, flat, &mut self.flatten_scratch),
+            },
+            None => *flat = self.flat.flatten(self.ib, i, LINK_DIM),
+        }
+        if let Some(sharpen) = self.sharpen_op.as_ref().filter(|_| self.sharpen) {
+            if !flat.is_empty() {
+                match &masks {
+                    Some(m) => {
+                        sharpen.apply_masked(flat, LINK_DIM, &mut self.sharpen_scratch, &m.sharpen)
+                    }
+                    None => sharpen.apply(flat, LINK_DIM, &mut self.sharpen_scratch),
+                }
+            }
+        }
+        self.flat_done = masks.map(|m| m.visible);
+        rows
+    }
+}
+
 impl Relight for CpuRelighter<'_> {
     fn flat_basis(&self) -> &FlatBasis {
         &self.flat
@@ -583,10 +669,29 @@ impl Relight for CpuRelighter<'_> {
         self.last = None;
     }
 
+    fn set_view(&mut self, view: Option<&Frustum>) {
+        self.view = view.copied();
+    }
+
     fn relight(&mut self, light: &Light) -> &Frame {
         let same_light = self.last.as_ref() == Some(light);
         if same_light && self.lag_settled {
-            self.frame.reused = true;
+            if self.flat_covers_view() {
+                self.frame.reused = true;
+            } else {
+                // Only step 4, for the rows the new view adds, from the kept `i`.
+                let t = Instant::now();
+                let i = std::mem::take(&mut self.frame.i);
+                let mut flat = std::mem::take(&mut self.frame.flat);
+                self.frame.flat_rows = self.flatten_stage(&i, &mut flat);
+                self.frame.i = i;
+                self.frame.flat = flat;
+                self.frame.times = StageTimes {
+                    flatten_ms: t.elapsed().as_secs_f64() * 1e3,
+                    ..StageTimes::default()
+                };
+                self.frame.reused = false;
+            }
             return &self.frame;
         }
         let mut times = StageTimes::default();
@@ -682,16 +787,7 @@ impl Relight for CpuRelighter<'_> {
         times.feedback_ms = t.elapsed().as_secs_f64() * 1e3;
 
         let t = Instant::now();
-        match &self.flatten_op {
-            Some(_) if !self.flatten_on_cpu => flat.clear(),
-            Some(op) => op.apply(&i, LINK_DIM, &mut flat, &mut self.flatten_scratch),
-            None => flat = self.flat.flatten(self.ib, &i, LINK_DIM),
-        }
-        if let Some(sharpen) = self.sharpen_op.as_ref().filter(|_| self.sharpen) {
-            if !flat.is_empty() {
-                sharpen.apply(&mut flat, LINK_DIM, &mut self.sharpen_scratch);
-            }
-        }
+        let flat_rows = self.flatten_stage(&i, &mut flat);
         times.flatten_ms = t.elapsed().as_secs_f64() * 1e3;
 
         self.frame = Frame {
@@ -703,6 +799,7 @@ impl Relight for CpuRelighter<'_> {
             senders_used: used,
             shadow_rays,
             averaged_points,
+            flat_rows,
             reused: false,
         };
         self.last = Some(*light);

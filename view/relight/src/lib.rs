@@ -17,7 +17,9 @@
 //!   rows, the fixed point `i = S (e + P-dagger (n . R i) - y(i))` that the bake's chain of
 //!   bounces through the coarsest receivers falls short of;
 //! - [`flatten_op`]: the sparse flattening operator (section 4.1), whose packed arrays a GPU
-//!   compute pass can also apply ([`flatten_op::FlattenOp::parts`]).
+//!   compute pass can also apply ([`flatten_op::FlattenOp::parts`]);
+//! - [`frustum`] and [`view_cull`]: a view's frustum, and the blocks of flat points whose
+//!   flattening and sharpening rows that view needs (the rest are left out of the products).
 //!
 //! Each operator gives the same bits for any rayon thread count. The file, the basis and the
 //! reference (per-query) versions of these operators are in `mlt-format`.
@@ -27,10 +29,12 @@ pub mod cpu;
 pub mod error;
 pub mod fine_bounce;
 pub mod flatten_op;
+pub mod frustum;
 pub mod light;
 pub mod pull_push_op;
 pub mod receiver_links;
 pub mod relight;
+pub mod view_cull;
 pub use mlt_format::support_average;
 
 pub use bounce_feedback::BounceFeedbackOp;
@@ -40,8 +44,10 @@ pub use fine_bounce::FineBounceOp;
 pub use flatten_op::{
     FlattenOp, FlattenOptions, FlattenScratch, Kernel, SharpenOp, SharpenScratch,
 };
+pub use frustum::Frustum;
 pub use light::{Light, LightError};
 pub use pull_push_op::PullPushOp;
 pub use receiver_links::ReceiverLinks;
 pub use relight::{Frame, Relight, StageTimes};
 pub use support_average::SupportAverage;
+pub use view_cull::{FlatCulling, ViewMasks};

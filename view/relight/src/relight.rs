@@ -6,6 +6,7 @@
 use serde::Serialize;
 
 use crate::flatten_op::{FlattenOp, SharpenOp};
+use crate::frustum::Frustum;
 use crate::light::Light;
 use mlt_format::flat_basis::FlatBasis;
 
@@ -51,7 +52,11 @@ pub struct Frame {
     /// Sender points whose direct sample was averaged over their basis function (the light
     /// was within a few support radii).
     pub averaged_points: u64,
-    /// True when the light had not moved and the previous frame was reused.
+    /// Flat points whose rows the flattening product computed: all of them, or with a view
+    /// ([`Relight::set_view`]) those it needs; 0 when the renderer flattens.
+    pub flat_rows: usize,
+    /// True when the light had not moved and the previous frame was reused (with a view
+    /// whose rows it holds).
     pub reused: bool,
 }
 
@@ -74,6 +79,13 @@ pub trait Relight {
     fn sharpen_operator(&self) -> Option<&SharpenOp> {
         None
     }
+
+    /// The view the next frames are drawn for: with one, an implementation may compute
+    /// `Frame::flat` only for the flat points whose functions may meet its frustum (the
+    /// others then hold stale values), and a frame for the same light but a view that needs
+    /// more is recomputed (`Frame::reused` false). `None`: every flat point. Implementations
+    /// that always compute every point ignore it.
+    fn set_view(&mut self, _view: Option<&Frustum>) {}
 
     /// Whether step 4 (flattening) runs here; off when the renderer does it on the GPU from
     /// `Frame::i`. Implementations without an operator ignore it.

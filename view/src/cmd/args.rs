@@ -83,6 +83,11 @@ pub struct RelightArgs {
     /// back the flat basis' smoothing.
     #[arg(long)]
     pub no_sharpen: bool,
+    /// Flatten (and sharpen) every flat point's coefficients each frame; by default only the
+    /// rows of the flat points whose functions may meet the view frustum, and those their
+    /// sharpening reads, are computed (the image is the same).
+    #[arg(long)]
+    pub no_view_culling: bool,
     /// Steps of the sharpening (iterated Shepard correction), 1 to 16: each takes back more of
     /// the flat basis' smoothing for one more product of its weights `W` (every second step
     /// over-relaxed, its correction weighted by 2.5).

@@ -95,6 +95,7 @@ pub fn with_viewing<T>(args: &BakedArgs, f: impl FnOnce(Viewing<'_>) -> Result<T
     relighter.adaptive_shadows = !relight.all_shadow_rays;
     relighter.support_average = !relight.point_samples;
     relighter.sharpen = !relight.no_sharpen;
+    relighter.view_culling = !relight.no_view_culling;
     relighter
         .set_sharpen_steps(relight.sharpen_steps)
         .context("--sharpen-steps")?;

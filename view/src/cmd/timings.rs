@@ -1,12 +1,13 @@
 //! `view timings FILE --frames N`: CPU relighting only (no GPU), N frames with the light
-//! moving on a circle, per-stage medians as JSON.
+//! moving on a circle, per-stage medians as JSON. The flat coefficients are computed for the
+//! file's camera, as the renderer would cull them (`--no-view-culling`: for every flat point).
 
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::Args;
 use mlt_view::headless::{light_on_path, median};
-use mlt_view::Relight;
+use mlt_view::{Frustum, Relight};
 
 use crate::cmd::args::BakedArgs;
 use crate::cmd::load::{with_viewing, Viewing};
@@ -44,6 +45,12 @@ pub fn run(args: &TimingsArgs) -> Result<()> {
 fn relight_frames(args: &TimingsArgs, v: &mut Viewing<'_>) -> serde_json::Value {
     let n = args.frames;
     let path_radius = v.path_radius();
+    let (lo, hi) = v.bounds();
+    let camera = v.camera;
+    let frustum =
+        Frustum::from_view_proj(&camera.reversed_view_proj(camera.planes_for_bounds(lo, hi)));
+    v.relighter.set_view(Some(&frustum));
+    let mut flat_rows = Vec::new();
     let mut per_stage: [Vec<f64>; 5] = Default::default();
     let mut senders = Vec::new();
     let mut rays = Vec::new();
@@ -60,6 +67,7 @@ fn relight_frames(args: &TimingsArgs, v: &mut Viewing<'_>) -> serde_json::Value 
         senders.push(frame.senders_used as f64);
         rays.push(frame.shadow_rays as f64);
         averaged.push(frame.averaged_points as f64);
+        flat_rows.push(frame.flat_rows as f64);
     }
     let [d, p, s, fb, fl] = per_stage.map(median);
     eprintln!(
@@ -84,6 +92,9 @@ fn relight_frames(args: &TimingsArgs, v: &mut Viewing<'_>) -> serde_json::Value 
         "lagged_feedback": v.relighter.lagged_feedback,
         "lag_pays": v.relighter.lag_pays(),
         "median_averaged_points": median(averaged),
+        "view_culling": v.relighter.view_culling,
+        "camera": {"width": camera.width, "height": camera.height},
+        "median_flat_rows": median(flat_rows),
         "load": v.relighter.load_stats(),
         "gpu": "not used: CPU relighting only (`view render FILE --out DIR` renders)",
     })

@@ -57,13 +57,14 @@ impl FlattenOp {
     /// `flat = F alpha` with `D` floats per point and `kernel`: tasks of [`TASK_BLOCKS`]
     /// blocks in parallel, writing the rows in place when the storage order is the point
     /// order, else into `scratch` and then to their points; then `post` (see
-    /// [`FlattenOp::apply_then`]).
+    /// [`FlattenOp::apply_then`]). With a `mask`, only the blocks it holds are computed.
     pub(super) fn apply_n<const D: usize>(
         &self,
         kernel: Kernel,
         alpha: &[f32],
         flat: &mut [f32],
         scratch: &mut FlattenScratch,
+        mask: Option<&[bool]>,
         post: impl Fn(usize, &mut [f32]) + Sync,
     ) {
         let rows: &mut [f32] = if self.identity {
@@ -77,23 +78,36 @@ impl FlattenOp {
             .for_each_init(Vec::new, |table, (task, out)| {
                 let (out, _) = out.as_chunks_mut::<D>();
                 let first = task * TASK_BLOCKS;
+                let wanted = |b: usize| mask.is_none_or(|m| m[b]);
+                let blocks = out.len().div_ceil(BLOCK_ROWS);
+                if !(first..first + blocks).any(wanted) {
+                    return;
+                }
                 match kernel {
-                    Kernel::Portable => self.blocks::<D, false>(alpha, first, out, table),
+                    Kernel::Portable => self.blocks::<D, false>(alpha, first, out, table, mask),
                     #[cfg(target_arch = "x86_64")]
                     Kernel::Avx2Fma => {
                         if let Some(out9) = as_rows9(out) {
                             // SAFETY: `apply_with` asserted that this CPU runs `kernel` (has
                             // AVX2 and FMA), the only requirement for calling a function
                             // compiled with them.
-                            unsafe { self.blocks_avx2_9(alpha, first, out9, table) }
+                            unsafe { self.blocks_avx2_9(alpha, first, out9, table, mask) }
                         } else {
                             // SAFETY: as above.
-                            unsafe { self.blocks_avx2::<D>(alpha, first, out, table) }
+                            unsafe { self.blocks_avx2::<D>(alpha, first, out, table, mask) }
                         }
                     }
                 }
                 if self.identity {
-                    post(first * BLOCK_ROWS, out.as_flattened_mut());
+                    if mask.is_none() {
+                        post(first * BLOCK_ROWS, out.as_flattened_mut());
+                    } else {
+                        for (q, rows) in out.chunks_mut(BLOCK_ROWS).enumerate() {
+                            if wanted(first + q) {
+                                post((first + q) * BLOCK_ROWS, rows.as_flattened_mut());
+                            }
+                        }
+                    }
                 }
             });
         if !self.identity {
@@ -111,8 +125,9 @@ impl FlattenOp {
         first: usize,
         out: &mut [[f32; D]],
         table: &mut Vec<f32>,
+        mask: Option<&[bool]>,
     ) {
-        self.blocks::<D, true>(alpha, first, out, table);
+        self.blocks::<D, true>(alpha, first, out, table, mask);
     }
 
     /// [`FlattenOp::blocks`] for 9 floats per point (vector irradiance, the viewer's case)
@@ -125,6 +140,7 @@ impl FlattenOp {
         first: usize,
         out: &mut [[f32; 9]],
         table: &mut Vec<f32>,
+        mask: Option<&[bool]>,
     ) {
         use std::arch::x86_64::{
             __m256, _mm256_add_ps, _mm256_fmadd_ps, _mm256_loadu_ps, _mm256_mul_ps, _mm256_set1_ps,
@@ -133,6 +149,9 @@ impl FlattenOp {
         let scale = 1.0 / QUANTUM as f32;
         for (q, rows) in out.chunks_mut(BLOCK_ROWS).enumerate() {
             let b = first + q;
+            if mask.is_some_and(|m| !m[b]) {
+                continue;
+            }
             self.gather_table(alpha, 9, b, table);
             let (table, _) = table.as_chunks::<9>();
             for (r, o) in rows.iter_mut().enumerate() {
@@ -185,7 +204,8 @@ impl FlattenOp {
         }
     }
 
-    /// Rows of the blocks from `first` on into `out` (whole blocks but perhaps the last).
+    /// Rows of the blocks from `first` on into `out` (whole blocks but perhaps the last),
+    /// those of the blocks `mask` holds when there is one (the others are left as they are).
     /// `FMA` sums with `mul_add`, which is a single instruction only where compiled for it.
     #[inline(always)]
     fn blocks<const D: usize, const FMA: bool>(
@@ -194,10 +214,14 @@ impl FlattenOp {
         first: usize,
         out: &mut [[f32; D]],
         table: &mut Vec<f32>,
+        mask: Option<&[bool]>,
     ) {
         let scale = 1.0 / QUANTUM as f32;
         for (q, rows) in out.chunks_mut(BLOCK_ROWS).enumerate() {
             let b = first + q;
+            if mask.is_some_and(|m| !m[b]) {
+                continue;
+            }
             self.gather_table(alpha, D, b, table);
             let (table, _) = table.as_chunks::<D>();
             let add = |acc: &mut [f32; D], e: u32| {
@@ -232,13 +256,14 @@ impl FlattenOp {
     }
 
     /// `flat = F alpha` with any number `dim` of floats per point (the portable kernel,
-    /// without partial sums), through `scratch`.
+    /// without partial sums), through `scratch`; with a `mask`, only its blocks.
     pub(super) fn apply_dyn(
         &self,
         alpha: &[f32],
         dim: usize,
         flat: &mut [f32],
         scratch: &mut FlattenScratch,
+        mask: Option<&[bool]>,
     ) {
         let scale = 1.0 / QUANTUM as f32;
         scratch.rows.resize(self.points * dim, 0.0);
@@ -247,6 +272,9 @@ impl FlattenOp {
             .par_chunks_mut(BLOCK_ROWS * dim)
             .enumerate()
             .for_each(|(b, out)| {
+                if mask.is_some_and(|m| !m[b]) {
+                    return;
+                }
                 let cols = self.block_cols(b);
                 for (r, o) in out.chunks_exact_mut(dim).enumerate() {
                     o.fill(0.0);

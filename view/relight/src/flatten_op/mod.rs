@@ -196,12 +196,37 @@ impl FlattenOp {
         flat: &mut [f32],
         scratch: &mut FlattenScratch,
     ) {
-        self.apply_then(kernel, alpha, dim, flat, scratch, |_, _| {});
+        self.apply_then(kernel, alpha, dim, flat, scratch, None, |_, _| {});
     }
 
-    /// [`FlattenOp::apply_with`], then `post(first, rows)` on the computed rows of the points
-    /// `first..` (`dim` floats each), a task's rows at a time while they are still in cache
-    /// when the storage order is the point order, else once on all of `flat`.
+    /// Number of blocks of [`BLOCK_ROWS`] rows (the last perhaps shorter), in storage order.
+    pub fn block_count(&self) -> usize {
+        self.block_offsets.len().saturating_sub(1)
+    }
+
+    /// [`FlattenOp::apply`] on the rows of the blocks `mask` holds (`mask[b]` for block `b`
+    /// of [`FlattenOp::block_count`], in storage order): their values are those of the whole
+    /// product, bit for bit, and the rows of the other blocks are left as they were in
+    /// `flat` (or, when the storage order is not the point order, take what the last product
+    /// through `scratch` left there). Panics when `mask` is not one flag per block.
+    pub fn apply_masked(
+        &self,
+        alpha: &[f32],
+        dim: usize,
+        flat: &mut [f32],
+        scratch: &mut FlattenScratch,
+        mask: &[bool],
+    ) {
+        assert_eq!(mask.len(), self.block_count(), "one flag per block");
+        let kernel = Kernel::detect();
+        self.apply_then(kernel, alpha, dim, flat, scratch, Some(mask), |_, _| {});
+    }
+
+    /// [`FlattenOp::apply_with`] (on the blocks of `mask` only, when there is one), then
+    /// `post(first, rows)` on the computed rows of the points `first..` (`dim` floats each),
+    /// a task's rows (with a mask, a block's) at a time while they are still in cache when the
+    /// storage order is the point order, else once on all of `flat`.
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn apply_then(
         &self,
         kernel: Kernel,
@@ -209,6 +234,7 @@ impl FlattenOp {
         dim: usize,
         flat: &mut [f32],
         scratch: &mut FlattenScratch,
+        mask: Option<&[bool]>,
         post: impl Fn(usize, &mut [f32]) + Sync,
     ) {
         assert!(alpha.len() == self.hier_points * dim && flat.len() == self.points * dim);
@@ -217,11 +243,11 @@ impl FlattenOp {
             return;
         }
         match dim {
-            1 => self.apply_n::<1>(kernel, alpha, flat, scratch, post),
-            3 => self.apply_n::<3>(kernel, alpha, flat, scratch, post),
-            9 => self.apply_n::<9>(kernel, alpha, flat, scratch, post),
+            1 => self.apply_n::<1>(kernel, alpha, flat, scratch, mask, post),
+            3 => self.apply_n::<3>(kernel, alpha, flat, scratch, mask, post),
+            9 => self.apply_n::<9>(kernel, alpha, flat, scratch, mask, post),
             _ => {
-                self.apply_dyn(alpha, dim, flat, scratch);
+                self.apply_dyn(alpha, dim, flat, scratch, mask);
                 post(0, flat);
             }
         }
@@ -253,7 +279,7 @@ impl FlattenOp {
 }
 
 #[cfg(test)]
-pub(super) mod tests {
+pub(crate) mod tests {
     use super::kernels::TASK_BLOCKS;
     use super::*;
     use mlt_format::flat_basis::FlatBasis;
@@ -262,12 +288,12 @@ pub(super) mod tests {
     use mlt_format::test_support::plane_basis;
 
     /// The flat basis on every point of `ib`.
-    pub(super) fn all(ib: &IndexedBasis) -> FlatBasis {
+    pub(crate) fn all(ib: &IndexedBasis) -> FlatBasis {
         FlatBasis::build(ib, None).unwrap()
     }
 
     /// Coefficients of a smooth function, 9 per point, with some points zeroed.
-    pub(super) fn coefficients(ib: &IndexedBasis, dim: usize) -> Vec<f32> {
+    pub(crate) fn coefficients(ib: &IndexedBasis, dim: usize) -> Vec<f32> {
         let mut samples = Vec::with_capacity(ib.basis.len() * dim);
         for (j, p) in ib.basis.positions.iter().enumerate() {
             for d in 0..dim {

@@ -145,6 +145,39 @@ impl SharpenOp {
     /// order, so the result is the same for any thread count. Panics when `flat` is not
     /// `points * dim` long.
     pub fn apply(&self, flat: &mut Vec<f32>, dim: usize, scratch: &mut SharpenScratch) {
+        self.apply_inner(flat, dim, scratch, None);
+    }
+
+    /// [`SharpenOp::apply`] where only some rows are wanted: step `k` computes the rows of
+    /// the blocks `masks[k]` holds (blocks of [`crate::flatten_op::BLOCK_ROWS`] flat points,
+    /// one flag per block of `W`, [`FlattenOp::block_count`]). Where each step's blocks hold every
+    /// block that the next step's rows read (and `flat`'s rows are right on the first step's
+    /// blocks and those it reads), the last step's rows equal [`SharpenOp::apply`]'s bit for
+    /// bit; the other rows of `flat` are left with stale values. Panics unless there is one
+    /// mask per step, each of one flag per block, or when `W`'s storage order is not the
+    /// flat point order ([`FlattenOp::in_point_order`]).
+    pub fn apply_masked(
+        &self,
+        flat: &mut Vec<f32>,
+        dim: usize,
+        scratch: &mut SharpenScratch,
+        masks: &[Vec<bool>],
+    ) {
+        assert_eq!(masks.len(), self.steps, "one mask per step");
+        assert!(masks
+            .iter()
+            .all(|m| m.len() == self.smoothing.block_count()));
+        assert!(self.smoothing.in_point_order());
+        self.apply_inner(flat, dim, scratch, Some(masks));
+    }
+
+    fn apply_inner(
+        &self,
+        flat: &mut Vec<f32>,
+        dim: usize,
+        scratch: &mut SharpenScratch,
+        masks: Option<&[Vec<bool>]>,
+    ) {
         if dim == 0 {
             return;
         }
@@ -161,8 +194,9 @@ impl SharpenOp {
             let c0: &[f32] = original;
             sharpened.resize(c0.len(), 0.0);
             let w = step_weight(step);
+            let mask = masks.map(|m| m[step].as_slice());
             self.smoothing
-                .apply_then(kernel, c, dim, sharpened, flatten, |first, rows| {
+                .apply_then(kernel, c, dim, sharpened, flatten, mask, |first, rows| {
                     let at = first * dim;
                     for ((o, &own), &orig) in rows.iter_mut().zip(&c[at..]).zip(&c0[at..]) {
                         *o = own + w * (orig - *o);
