@@ -159,6 +159,14 @@ impl Camera {
         Mat4::from_translation(shift) * proj * self.view_matrix()
     }
 
+    /// The frustum of [`Camera::reversed_view_proj`] with [`Camera::planes_for_bounds`] for
+    /// a scene with the given bounds: what the renderer culls the flat basis to, and the
+    /// relighter's view ([`mlt_relight::Relight::set_view`]).
+    pub fn frustum_for_bounds(&self, lo: Vec3, hi: Vec3) -> mlt_relight::Frustum {
+        let view_proj = self.reversed_view_proj(self.planes_for_bounds(lo, hi));
+        mlt_relight::Frustum::from_view_proj(&view_proj)
+    }
+
     /// Near and far planes that enclose a scene with the given bounds: far beyond its farthest
     /// corner, near a fixed fraction (1e-4) of far, so that the planes scale with the scene.
     pub fn planes_for_bounds(&self, lo: Vec3, hi: Vec3) -> (f32, f32) {

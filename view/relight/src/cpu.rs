@@ -589,16 +589,24 @@ impl CpuRelighter<'_> {
     /// The blocks step 4 computes for the current view, or `None` for every row (no view,
     /// culling off, or operators whose layout allows none).
     fn view_masks(&self) -> Option<ViewMasks> {
+        let (culling, view) = self.culling_for_view()?;
+        let steps = self
+            .sharpen_op
+            .as_ref()
+            .filter(|_| self.sharpen)
+            .map_or(0, SharpenOp::steps);
+        Some(culling.masks(view, steps))
+    }
+
+    /// The culling structure and the view to cull to, when step 4 is culled.
+    fn culling_for_view(&self) -> Option<(&FlatCulling, &Frustum)> {
         let view = self.view.as_ref().filter(|_| self.view_culling)?;
         let op = self.flatten_op.as_ref()?;
-        let sharpen = self.sharpen_op.as_ref();
         let culling = self
             .culling
-            .get_or_init(|| FlatCulling::build(&self.flat, op, sharpen))
+            .get_or_init(|| FlatCulling::build(&self.flat, op, self.sharpen_op.as_ref()))
             .as_ref()?;
-        let steps = sharpen.filter(|_| self.sharpen).map_or(0, SharpenOp::steps);
-        let m = culling.masks(view, steps);
-        Some(m)
+        Some((culling, view))
     }
 
     /// Whether `frame.flat` holds, for the frame's light, every row the current view needs.
@@ -609,8 +617,12 @@ impl CpuRelighter<'_> {
         if self.frame.flat.is_empty() {
             return true;
         }
-        match self.view_masks() {
-            Some(masks) => masks.visible.iter().zip(done).all(|(v, d)| !v || *d),
+        match self.culling_for_view() {
+            Some((culling, view)) => culling
+                .visible(view)
+                .iter()
+                .zip(done)
+                .all(|(v, d)| !v || *d),
             None => false,
         }
     }

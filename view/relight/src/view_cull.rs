@@ -97,23 +97,17 @@ impl FlatCulling {
         }
         let mut read_offsets = vec![0u32];
         let mut reads = Vec::new();
+        let mut read = Vec::new();
         for block in 0..blocks {
-            if let Some(w) = w {
-                let parts = w.parts();
+            if let Some(parts) = w.map(FlattenOp::parts) {
                 let cols = &parts.block_cols
                     [parts.block_offsets[block] as usize..parts.block_offsets[block + 1] as usize];
-                let start = reads.len();
-                reads.extend(cols.iter().map(|&k| k / BLOCK_ROWS as u32));
-                reads.push(block as u32);
-                reads[start..].sort_unstable();
-                let mut kept = start;
-                for q in start..reads.len() {
-                    if q == start || reads[q] != reads[kept - 1] {
-                        reads[kept] = reads[q];
-                        kept += 1;
-                    }
-                }
-                reads.truncate(kept);
+                read.clear();
+                read.extend(cols.iter().map(|&k| k / BLOCK_ROWS as u32));
+                read.push(block as u32);
+                read.sort_unstable();
+                read.dedup();
+                reads.extend_from_slice(&read);
             }
             read_offsets.push(reads.len() as u32);
         }
@@ -144,8 +138,9 @@ impl FlatCulling {
     /// the flattening (0: none). Panics when `steps` is above 0 and `W`'s structure was not
     /// given to [`FlatCulling::build`].
     pub fn masks(&self, frustum: &Frustum, steps: usize) -> ViewMasks {
+        // Every block reads itself in `W`, so `reads` is empty only without it.
         assert!(
-            steps == 0 || self.read_offsets.len() == self.blocks() + 1 && !self.reads.is_empty(),
+            steps == 0 || !self.reads.is_empty(),
             "sharpening steps without W's structure"
         );
         let visible = self.visible(frustum);

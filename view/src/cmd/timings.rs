@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use clap::Args;
 use mlt_view::headless::{light_on_path, median};
-use mlt_view::{Frustum, Relight};
+use mlt_view::Relight;
 
 use crate::cmd::args::BakedArgs;
 use crate::cmd::load::{with_viewing, Viewing};
@@ -47,9 +47,8 @@ fn relight_frames(args: &TimingsArgs, v: &mut Viewing<'_>) -> serde_json::Value 
     let path_radius = v.path_radius();
     let (lo, hi) = v.bounds();
     let camera = v.camera;
-    let frustum =
-        Frustum::from_view_proj(&camera.reversed_view_proj(camera.planes_for_bounds(lo, hi)));
-    v.relighter.set_view(Some(&frustum));
+    v.relighter
+        .set_view(Some(&camera.frustum_for_bounds(lo, hi)));
     let mut flat_rows = Vec::new();
     let mut per_stage: [Vec<f64>; 5] = Default::default();
     let mut senders = Vec::new();

@@ -325,8 +325,7 @@ impl Renderer {
     /// The frustum that [`Renderer::render`] culls the flat basis to for `camera` (the
     /// relighter's view, [`mlt_relight::Relight::set_view`]).
     pub fn frustum(&self, camera: &Camera) -> Frustum {
-        let planes = camera.planes_for_bounds(self.bounds.0, self.bounds.1);
-        Frustum::from_view_proj(&camera.reversed_view_proj(planes))
+        camera.frustum_for_bounds(self.bounds.0, self.bounds.1)
     }
 
     /// Culls the basis to the frustum of `view_proj` and uploads the visible list; returns
