@@ -189,6 +189,19 @@ fn cornell_box_bleeds_red_and_green_onto_the_white_back_wall() {
     for stage in ["direct", "project", "transport", "flatten"] {
         assert!(json["median_ms"][stage].as_f64().unwrap() >= 0.0);
     }
+    // The camera turn reflattens at most once per step, never more rows than the file has.
+    let turn = &json["camera_turn"];
+    let steps = turn["steps"].as_u64().unwrap();
+    assert!(
+        turn["steps_reflattened"].as_u64().unwrap() <= steps,
+        "{turn}"
+    );
+    assert!(turn["median_ms"].as_f64().unwrap() >= 0.0, "{turn}");
+    assert!(
+        turn["median_flat_rows"].as_f64().unwrap() <= json["load"]["flat_points"].as_f64().unwrap(),
+        "{turn} {}",
+        json["load"]
+    );
     std::fs::write(&input, "1,2,3,0,0,1\n1,2,3\n").unwrap();
     let r = Command::new(env!("CARGO_BIN_EXE_view"))
         .arg("probe")
@@ -767,9 +780,9 @@ fn a_view_flattens_only_what_it_needs_and_the_same_bits() {
     culled.set_view(Some(&left));
     let frame = culled.relight(&light).clone();
     assert!(!frame.reused);
-    // Blocks of 128 Morton-ordered rows, dilated twice through `W` for the two sharpening
-    // steps: fewer rows, though far more than the view's own.
+    // The view's own rows, dilated twice through `W`'s rows for the two sharpening steps.
     assert!(frame.flat_rows < points, "{} of {points}", frame.flat_rows);
+    assert!(frame.flat_rows >= seen(&left).len());
     assert_eq!(bits(&frame.i), bits(&all.i));
     same_where_seen(&frame, &left);
     // The same view again: nothing recomputed.

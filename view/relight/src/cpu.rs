@@ -37,7 +37,7 @@
 //! The operators are built once, in [`CpuRelighter::new`] (timed in [`LoadStats`]). When the
 //! light has not moved, nothing is recomputed.
 
-use std::sync::OnceLock;
+use std::sync::{Arc, OnceLock};
 use std::time::Instant;
 
 use glam::Vec3;
@@ -215,8 +215,12 @@ pub struct CpuRelighter<'a> {
     /// Built on the first frame with a view; `None` inside where the operators' layout allows
     /// no culling ([`FlatCulling::build`]).
     culling: OnceLock<Option<FlatCulling>>,
-    /// The blocks of `frame.flat` that hold the coefficients of `frame`'s light; `None`: all.
-    flat_done: Option<Vec<bool>>,
+    /// The view and rows of `frame.flat` that hold the coefficients of `frame`'s light;
+    /// `None`: all.
+    flat_done: Option<(Frustum, Arc<ViewMasks>)>,
+    /// The rows step 4 computed for the last view (the dilation through `W` is redone only
+    /// when the view or the number of sharpening steps changes).
+    masks_cache: Option<(Frustum, usize, Arc<ViewMasks>)>,
     /// Compute step 4 only for the view set with [`Relight::set_view`] (on by default; off,
     /// every flat point's coefficients are computed whatever the view).
     pub view_culling: bool,
@@ -340,6 +344,7 @@ impl<'a> CpuRelighter<'a> {
             view: None,
             culling: OnceLock::new(),
             flat_done: None,
+            masks_cache: None,
             view_culling: true,
             frame: Frame::default(),
             last: None,
@@ -586,16 +591,24 @@ fn added(a: &[f32], b: &[f32]) -> Vec<f32> {
 }
 
 impl CpuRelighter<'_> {
-    /// The blocks step 4 computes for the current view, or `None` for every row (no view,
-    /// culling off, or operators whose layout allows none).
-    fn view_masks(&self) -> Option<ViewMasks> {
-        let (culling, view) = self.culling_for_view()?;
+    /// The rows step 4 computes for the current view, and the view, or `None` for every row
+    /// (no view, culling off, or operators whose layout allows none).
+    fn view_masks(&mut self) -> Option<(Frustum, Arc<ViewMasks>)> {
         let steps = self
             .sharpen_op
             .as_ref()
             .filter(|_| self.sharpen)
             .map_or(0, SharpenOp::steps);
-        Some(culling.masks(view, steps))
+        let (culling, view) = self.culling_for_view()?;
+        let view = *view;
+        if let Some((v, s, m)) = &self.masks_cache {
+            if *v == view && *s == steps {
+                return Some((view, m.clone()));
+            }
+        }
+        let masks = Arc::new(culling.masks(&view, steps));
+        self.masks_cache = Some((view, steps, masks.clone()));
+        Some((view, masks))
     }
 
     /// The culling structure and the view to cull to, when step 4 is culled.
@@ -611,17 +624,18 @@ impl CpuRelighter<'_> {
 
     /// Whether `frame.flat` holds, for the frame's light, every row the current view needs.
     fn flat_covers_view(&self) -> bool {
-        let Some(done) = &self.flat_done else {
+        let Some((done_view, done)) = &self.flat_done else {
             return true;
         };
         if self.frame.flat.is_empty() {
             return true;
         }
         match self.culling_for_view() {
+            Some((_, view)) if view == done_view => true,
             Some((culling, view)) => culling
                 .visible(view)
                 .iter()
-                .zip(done)
+                .zip(&done.visible)
                 .all(|(v, d)| !v || *d),
             None => false,
         }
@@ -639,9 +653,9 @@ impl CpuRelighter<'_> {
                 return 0;
             }
             Some(op) => match &masks {
-                Some(m) => {
+                Some((_, m)) => {
                     op.apply_masked(i, LINK_DIM, flat, &mut self.flatten_scratch, &m.flatten);
-                    rows = m.flatten_rows(self.flat.len());
+                    rows = m.flatten_rows();
                 }
                 None => op.apply(i, LINK_DIM, flat, &mut self.flatten_scratch),
             },
@@ -650,14 +664,14 @@ impl CpuRelighter<'_> {
         if let Some(sharpen) = self.sharpen_op.as_ref().filter(|_| self.sharpen) {
             if !flat.is_empty() {
                 match &masks {
-                    Some(m) => {
+                    Some((_, m)) => {
                         sharpen.apply_masked(flat, LINK_DIM, &mut self.sharpen_scratch, &m.sharpen)
                     }
                     None => sharpen.apply(flat, LINK_DIM, &mut self.sharpen_scratch),
                 }
             }
         }
-        self.flat_done = masks.map(|m| m.visible);
+        self.flat_done = masks;
         rows
     }
 }

@@ -42,7 +42,7 @@ pub use cpu::{CpuRelighter, FineEmission, LoadStats};
 pub use error::RelightError;
 pub use fine_bounce::FineBounceOp;
 pub use flatten_op::{
-    FlattenOp, FlattenOptions, FlattenScratch, Kernel, SharpenOp, SharpenScratch,
+    FlattenOp, FlattenOptions, FlattenScratch, Kernel, RowMask, SharpenOp, SharpenScratch,
 };
 pub use frustum::Frustum;
 pub use light::{Light, LightError};

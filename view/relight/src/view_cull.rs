@@ -6,64 +6,65 @@
 //! the other flat coefficients of a frame are never looked at. The flat points are stored in
 //! Morton order and the products run in blocks of [`BLOCK_ROWS`] consecutive rows, so a block
 //! is a compact patch of surface: each block gets the box that bounds its points' support
-//! spheres, and the blocks whose box meets the frustum are the ones the view needs. The
-//! sharpening steps `c_{k+1} = c_k + w_k (c_0 - W c_k)` couple neighbours through `W`, so
-//! step `k` must compute its rows on the blocks that step `k + 1`'s rows read as well,
-//! and the flattening product on those the first step reads: with `s` steps the blocks needed
-//! are the visible ones dilated `s` times by "reads a column of" in `W`'s block structure.
-//! Every row computed is computed as in the whole product (the same entries in the same
-//! order), so the coefficients the view needs are the same bits as without culling.
+//! spheres, and only in the blocks whose box meets the frustum are the points' own spheres
+//! tested. The sharpening steps `c_{k+1} = c_k + w_k (c_0 - W c_k)` couple neighbours through
+//! `W`, so step `k` must compute its rows on the points that step `k + 1`'s rows read as well,
+//! and the flattening product on those the first step reads: with `s` steps the rows needed
+//! are the visible ones dilated `s` times by "reads a column of" in `W`'s rows. Every row
+//! computed is computed as in the whole product (the same entries in the same order), so the
+//! coefficients the view needs are the same bits as without culling. Blocks without a needed
+//! row are skipped whole ([`RowMask`]).
 
 use glam::Vec3;
+use rayon::prelude::*;
 
-use crate::flatten_op::{FlattenOp, SharpenOp, BLOCK_ROWS};
+use crate::flatten_op::{FlattenOp, RowMask, SharpenOp, BLOCK_ROWS};
 use crate::frustum::Frustum;
 use mlt_format::flat_basis::FlatBasis;
 
-/// The blocks of flat points and the sharpening's block structure, built once per flat basis.
+/// The flat points' support spheres, their blocks' boxes and the columns of `W`'s rows, built
+/// once per flat basis.
 #[derive(Clone, Debug, PartialEq)]
 pub struct FlatCulling {
-    /// Flat points.
-    points: usize,
-    /// Per block, the corners of the box bounding its points' support spheres.
+    /// Per flat point, its support sphere's centre and radius (a little enlarged, so that
+    /// rounding can never reject a sphere that the renderer's sphere test keeps).
+    centres: Vec<Vec3>,
+    radii: Vec<f32>,
+    /// Per block, the corners of the box bounding its points' spheres.
     lo: Vec<Vec3>,
     hi: Vec<Vec3>,
-    /// `blocks + 1` offsets into `reads`.
+    /// `points + 1` offsets into `reads`, when there is a `W`.
     read_offsets: Vec<u32>,
-    /// The blocks whose coefficients each block's rows of `W` read, block after block, in
-    /// ascending order (the block itself included: a point's own function weighs at it).
+    /// The flat points whose coefficients each row of `W` reads, row after row.
     reads: Vec<u32>,
+    /// `points + 1` offsets into `readers`, when there is a `W`.
+    reader_offsets: Vec<u32>,
+    /// The rows of `W` that read each flat point's coefficient, point after point, each
+    /// point's in ascending order: `reads` transposed, for dilating masks that hold most rows
+    /// (see [`FlatCulling::dilate`]).
+    readers: Vec<u32>,
 }
 
-/// The blocks a view needs, per product.
+/// The rows a view needs, per product.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ViewMasks {
-    /// The flattening product's blocks (`c_0`).
-    pub flatten: Vec<bool>,
-    /// Sharpening step `k`'s blocks (`c_{k+1}`), one mask per step.
-    pub sharpen: Vec<Vec<bool>>,
-    /// The blocks whose functions may meet the view: those of the last product.
+    /// The flattening product's rows (`c_0`).
+    pub flatten: RowMask,
+    /// Sharpening step `k`'s rows (`c_{k+1}`), one mask per step.
+    pub sharpen: Vec<RowMask>,
+    /// The flat points whose functions may meet the view, one flag per point.
     pub visible: Vec<bool>,
 }
 
 impl ViewMasks {
-    /// Rows the flattening product computes (of `points`).
-    pub fn flatten_rows(&self, points: usize) -> usize {
-        rows_of(&self.flatten, points)
+    /// Rows the flattening product computes.
+    pub fn flatten_rows(&self) -> usize {
+        self.flatten.count()
     }
 }
 
-/// Rows of the blocks `mask` holds, of `points` rows in blocks of [`BLOCK_ROWS`].
-fn rows_of(mask: &[bool], points: usize) -> usize {
-    mask.iter()
-        .enumerate()
-        .filter(|(_, &m)| m)
-        .map(|(b, _)| BLOCK_ROWS.min(points - b * BLOCK_ROWS))
-        .sum()
-}
-
 impl FlatCulling {
-    /// The blocks of `flat` and, with `sharpen`, `W`'s block structure; `None` where the
+    /// The spheres and blocks of `flat` and, with `sharpen`, `W`'s columns; `None` where the
     /// operators' rows are not stored in the flat point order (flat bases that did not come
     /// from [`FlatBasis::build`]), which culling by blocks of points needs.
     pub fn build(
@@ -81,42 +82,67 @@ impl FlatCulling {
             return None;
         }
         let b = &flat.ib.basis;
+        let centres: Vec<Vec3> = b.positions[..points].iter().map(|&p| p.into()).collect();
+        let radii: Vec<f32> = centres
+            .iter()
+            .zip(&b.radii[..points])
+            .map(|(c, &r)| r * (1.0 + 1e-4) + 1e-5 * c.abs().max_element())
+            .collect();
         let (mut lo, mut hi) = (Vec::with_capacity(blocks), Vec::with_capacity(blocks));
         for block in 0..blocks {
             let (mut l, mut h) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
             for j in block * BLOCK_ROWS..((block + 1) * BLOCK_ROWS).min(points) {
-                let c = Vec3::from(b.positions[j]);
-                // A little more than the radius, so that rounding in the box test can never
-                // reject a sphere that the renderer's sphere test keeps.
-                let r = b.radii[j] * (1.0 + 1e-4) + 1e-5 * c.abs().max_element();
-                l = l.min(c - r);
-                h = h.max(c + r);
+                l = l.min(centres[j] - radii[j]);
+                h = h.max(centres[j] + radii[j]);
             }
             lo.push(l);
             hi.push(h);
         }
-        let mut read_offsets = vec![0u32];
-        let mut reads = Vec::new();
-        let mut read = Vec::new();
-        for block in 0..blocks {
-            if let Some(parts) = w.map(FlattenOp::parts) {
+        let (mut read_offsets, mut reads) = (Vec::new(), Vec::new());
+        let (mut reader_offsets, mut readers) = (Vec::new(), Vec::new());
+        if let Some(parts) = w.map(FlattenOp::parts) {
+            // The column of each entry of row `j` of `W`, row after row.
+            let row_cols = |j: usize| {
+                let block = j / BLOCK_ROWS;
                 let cols = &parts.block_cols
                     [parts.block_offsets[block] as usize..parts.block_offsets[block + 1] as usize];
-                read.clear();
-                read.extend(cols.iter().map(|&k| k / BLOCK_ROWS as u32));
-                read.push(block as u32);
-                read.sort_unstable();
-                read.dedup();
-                reads.extend_from_slice(&read);
+                parts.entries[parts.row_offsets[j] as usize..parts.row_offsets[j + 1] as usize]
+                    .iter()
+                    .map(move |&e| cols[(e & 0xffff) as usize] as usize)
+            };
+            read_offsets.reserve(points + 1);
+            read_offsets.push(0u32);
+            for j in 0..points {
+                reads.extend(row_cols(j).map(|k| k as u32));
+                read_offsets.push(reads.len() as u32);
             }
-            read_offsets.push(reads.len() as u32);
+            // Transposed by counting: readers of each column in ascending row order.
+            let mut counts = vec![0u32; points + 1];
+            for &k in &reads {
+                counts[k as usize + 1] += 1;
+            }
+            for k in 0..points {
+                counts[k + 1] += counts[k];
+            }
+            reader_offsets = counts;
+            let mut next = reader_offsets.clone();
+            readers = vec![0u32; reads.len()];
+            for j in 0..points {
+                for &k in &reads[read_offsets[j] as usize..read_offsets[j + 1] as usize] {
+                    readers[next[k as usize] as usize] = j as u32;
+                    next[k as usize] += 1;
+                }
+            }
         }
         Some(FlatCulling {
-            points,
+            centres,
+            radii,
             lo,
             hi,
             read_offsets,
             reads,
+            reader_offsets,
+            readers,
         })
     }
 
@@ -125,51 +151,87 @@ impl FlatCulling {
         self.lo.len()
     }
 
-    /// The blocks whose support spheres may meet `frustum`.
+    /// The flat points whose support spheres may meet `frustum`, one flag per point.
     pub fn visible(&self, frustum: &Frustum) -> Vec<bool> {
-        self.lo
-            .iter()
-            .zip(&self.hi)
-            .map(|(&lo, &hi)| frustum.meets_box(lo, hi))
+        let mut visible = vec![false; self.centres.len()];
+        visible
+            .par_chunks_mut(BLOCK_ROWS)
+            .enumerate()
+            .with_min_len(8)
+            .for_each(|(block, out)| {
+                if !frustum.meets_box(self.lo[block], self.hi[block]) {
+                    return;
+                }
+                let at = block * BLOCK_ROWS;
+                for (k, v) in out.iter_mut().enumerate() {
+                    *v = frustum.meets_sphere(self.centres[at + k], self.radii[at + k]);
+                }
+            });
+        visible
+    }
+
+    /// `next` dilated by `W`: the rows `next` holds and every row a row of `next` reads. A
+    /// mask that holds few rows scatters through their reads; one that holds most gathers,
+    /// row by row, whether a row of `next` reads it (in parallel, stopping at the first), so
+    /// that the work follows the smaller side. Both give the same mask.
+    fn dilate(&self, next: &[bool]) -> Vec<bool> {
+        let held = next.iter().filter(|&&m| m).count();
+        if 2 * held < next.len() {
+            self.dilate_scatter(next)
+        } else {
+            self.dilate_gather(next)
+        }
+    }
+
+    fn dilate_scatter(&self, next: &[bool]) -> Vec<bool> {
+        // A row's own coefficient is read by its step whether or not `W` holds it.
+        let mut wider = next.to_vec();
+        for (j, _) in next.iter().enumerate().filter(|(_, &m)| m) {
+            for &k in &self.reads[self.read_offsets[j] as usize..self.read_offsets[j + 1] as usize]
+            {
+                wider[k as usize] = true;
+            }
+        }
+        wider
+    }
+
+    fn dilate_gather(&self, next: &[bool]) -> Vec<bool> {
+        (0..next.len())
+            .into_par_iter()
+            .with_min_len(1024)
+            .map(|k| {
+                next[k]
+                    || self.readers
+                        [self.reader_offsets[k] as usize..self.reader_offsets[k + 1] as usize]
+                        .iter()
+                        .any(|&j| next[j as usize])
+            })
             .collect()
     }
 
-    /// The blocks each product computes for `frustum` when `steps` sharpening steps follow
-    /// the flattening (0: none). Panics when `steps` is above 0 and `W`'s structure was not
+    /// The rows each product computes for `frustum` when `steps` sharpening steps follow
+    /// the flattening (0: none). Panics when `steps` is above 0 and `W`'s columns were not
     /// given to [`FlatCulling::build`].
     pub fn masks(&self, frustum: &Frustum, steps: usize) -> ViewMasks {
-        // Every block reads itself in `W`, so `reads` is empty only without it.
         assert!(
-            steps == 0 || !self.reads.is_empty(),
+            steps == 0 || !self.reader_offsets.is_empty(),
             "sharpening steps without W's structure"
         );
         let visible = self.visible(frustum);
-        let mut sharpen = vec![visible.clone()];
+        let mut rows = vec![visible.clone()];
         for _ in 0..steps {
-            let next = sharpen.last().expect("one mask at least");
-            let mut wider = next.clone();
-            for (b, _) in next.iter().enumerate().filter(|(_, &m)| m) {
-                for &r in
-                    &self.reads[self.read_offsets[b] as usize..self.read_offsets[b + 1] as usize]
-                {
-                    wider[r as usize] = true;
-                }
-            }
-            sharpen.push(wider);
+            let wider = self.dilate(rows.last().expect("one mask at least"));
+            rows.push(wider);
         }
-        // `sharpen` holds the last step's blocks first, the flattening's last.
-        sharpen.reverse();
-        let flatten = sharpen.remove(0);
+        // `rows` holds the last step's rows first, the flattening's last.
+        rows.reverse();
+        let mut masks = rows.into_iter().map(RowMask::from_rows);
+        let flatten = masks.next().expect("one mask at least");
         ViewMasks {
             flatten,
-            sharpen,
+            sharpen: masks.collect(),
             visible,
         }
-    }
-
-    /// Rows of the blocks `mask` holds.
-    pub fn rows(&self, mask: &[bool]) -> usize {
-        rows_of(mask, self.points)
     }
 }
 
@@ -211,12 +273,13 @@ mod tests {
                 .sharpen
                 .iter()
                 .zip(std::iter::once(&masks.flatten).chain(&masks.sharpen))
-                .all(|(next, before)| next.iter().zip(before).all(|(n, b)| !n || *b)));
-            let rows = masks.flatten_rows(fb.len());
-            assert!(
-                rows < fb.len() && culling.rows(&masks.visible) > 0,
-                "{rows}"
-            );
+                .all(|(next, before)| next.within(before)));
+            let last = masks.sharpen.last().expect("steps");
+            assert_eq!(last.rows(), masks.visible.as_slice());
+            let rows = masks.flatten_rows();
+            assert!(rows < fb.len() && last.count() > 0, "{rows}");
+            // Rows, not whole blocks: fewer rows than the blocks hold.
+            assert!(rows < masks.flatten.block_rows(), "{rows}");
             // Stale values everywhere else: NaN, which must not reach a needed row.
             let mut flat = vec![f32::NAN; fb.len() * LINK_DIM];
             let mut scratch = SharpenScratch::default();
@@ -234,7 +297,7 @@ mod tests {
                     continue;
                 }
                 seen += 1;
-                assert!(masks.visible[j / BLOCK_ROWS], "point {j} meets the view");
+                assert!(masks.visible[j], "point {j} meets the view");
                 for d in 0..LINK_DIM {
                     let (got, want) = (flat[j * LINK_DIM + d], whole[j * LINK_DIM + d]);
                     assert_eq!(
@@ -245,6 +308,47 @@ mod tests {
                 }
             }
             assert!(seen > 0);
+        }
+    }
+
+    /// The scatter through `W`'s rows and the gather through its columns dilate alike, on
+    /// masks that hold few rows and most (the two sides of [`FlatCulling::dilate`]'s choice),
+    /// and every row a held row reads is in the result, and nothing else.
+    #[test]
+    fn both_dilations_give_the_same_rows() {
+        let ib = plane_basis(6, 3);
+        let fb = all(&ib);
+        let op = FlattenOp::build(&ib, &fb, None).unwrap();
+        let sharpen = SharpenOp::build(&fb).unwrap();
+        let culling = FlatCulling::build(&fb, &op, Some(&sharpen)).unwrap();
+        let n = fb.len();
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        for density in [0.01, 0.1, 0.45, 0.55, 0.9, 0.99] {
+            let mask: Vec<bool> = (0..n)
+                .map(|_| {
+                    state = state
+                        .wrapping_mul(6_364_136_223_846_793_005)
+                        .wrapping_add(1_442_695_040_888_963_407);
+                    ((state >> 11) as f64 / (1u64 << 53) as f64) < density
+                })
+                .collect();
+            let scatter = culling.dilate_scatter(&mask);
+            assert_eq!(scatter, culling.dilate_gather(&mask), "density {density}");
+            assert_eq!(scatter, culling.dilate(&mask), "density {density}");
+            // The definition, row by row.
+            let mut want = mask.clone();
+            for j in (0..n).filter(|&j| mask[j]) {
+                let r = culling.read_offsets[j] as usize..culling.read_offsets[j + 1] as usize;
+                for &k in &culling.reads[r] {
+                    want[k as usize] = true;
+                }
+            }
+            assert_eq!(scatter, want);
+            let (held, wider) = (
+                mask.iter().filter(|&&m| m).count(),
+                scatter.iter().filter(|&&m| m).count(),
+            );
+            assert!(wider > held || held == n, "{density}: {held} -> {wider}");
         }
     }
 
@@ -265,7 +369,7 @@ mod tests {
         );
         let masks = culling.masks(&frustum, 0);
         assert!(masks.sharpen.is_empty());
-        assert_eq!(masks.flatten, masks.visible);
+        assert_eq!(masks.flatten.rows(), masks.visible.as_slice());
         assert!(masks.visible.iter().all(|v| !v));
         // And a view of everything needs every block.
         let all_in = looking_down(0.5, 0.5, 3.0, 1.2);

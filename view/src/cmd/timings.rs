@@ -1,6 +1,8 @@
 //! `view timings FILE --frames N`: CPU relighting only (no GPU), N frames with the light
 //! moving on a circle, per-stage medians as JSON. The flat coefficients are computed for the
-//! file's camera, as the renderer would cull them (`--no-view-culling`: for every flat point).
+//! file's camera, as the renderer would cull them (`--no-view-culling`: for every flat point);
+//! then, under the last light, the camera turns in small steps and the cost of each step
+//! (flattening the rows the new view adds) is reported as `camera_turn`.
 
 use std::path::PathBuf;
 
@@ -41,6 +43,48 @@ pub fn run(args: &TimingsArgs) -> Result<()> {
     })
 }
 
+/// Degrees the camera turns per step in [`camera_turn`].
+const TURN_DEG: f32 = 2.0;
+
+/// What a camera move under a fixed light costs: the light is held until the relighter reuses
+/// its frame, then the camera turns about its up vector by [`TURN_DEG`] per step for `steps`
+/// steps; each step that needs rows the previous views did not is reflattened for them (with
+/// view culling; without it every row was flattened with the light, and a turn costs nothing).
+fn camera_turn(v: &mut Viewing<'_>, light: &mlt_view::Light, steps: u32) -> serde_json::Value {
+    let (lo, hi) = v.bounds();
+    let mut camera = v.camera;
+    // Until the light's frame is final (the lagged feedback settles on a held light).
+    for _ in 0..4 {
+        if v.relighter.relight(light).reused {
+            break;
+        }
+    }
+    let (mut ms, mut rows) = (Vec::new(), Vec::new());
+    let turn = glam::Quat::from_axis_angle(camera.up.normalize(), TURN_DEG.to_radians());
+    for _ in 0..steps.max(1) {
+        camera.target = camera.position + turn * (camera.target - camera.position);
+        v.relighter
+            .set_view(Some(&camera.frustum_for_bounds(lo, hi)));
+        let frame = v.relighter.relight(light);
+        if !frame.reused {
+            ms.push(frame.times.flatten_ms);
+            rows.push(frame.flat_rows as f64);
+        }
+    }
+    let reflattened = ms.len();
+    // The timings' own view again, for whatever runs next.
+    let camera = v.camera;
+    v.relighter
+        .set_view(Some(&camera.frustum_for_bounds(lo, hi)));
+    serde_json::json!({
+        "degrees_per_step": TURN_DEG,
+        "steps": steps.max(1),
+        "steps_reflattened": reflattened,
+        "median_ms": median(ms),
+        "median_flat_rows": median(rows),
+    })
+}
+
 /// Relights the frames and returns the medians as JSON (also summed up on stderr).
 fn relight_frames(args: &TimingsArgs, v: &mut Viewing<'_>) -> serde_json::Value {
     let n = args.frames;
@@ -69,6 +113,11 @@ fn relight_frames(args: &TimingsArgs, v: &mut Viewing<'_>) -> serde_json::Value 
         flat_rows.push(frame.flat_rows as f64);
     }
     let [d, p, s, fb, fl] = per_stage.map(median);
+    let turn = camera_turn(
+        v,
+        &light_on_path(&v.light, path_radius, n.max(1) - 1, n.max(1)),
+        n,
+    );
     eprintln!(
         "median per frame over {n} frames with a moving light: direct {d:.1} ms, pull-push {p:.1} ms, S e {s:.1} ms, bounce feedback {fb:.1} ms, flatten {fl:.1} ms"
     );
@@ -94,6 +143,7 @@ fn relight_frames(args: &TimingsArgs, v: &mut Viewing<'_>) -> serde_json::Value 
         "view_culling": v.relighter.view_culling,
         "camera": {"width": camera.width, "height": camera.height},
         "median_flat_rows": median(flat_rows),
+        "camera_turn": turn,
         "load": v.relighter.load_stats(),
         "gpu": "not used: CPU relighting only (`view render FILE --out DIR` renders)",
     })

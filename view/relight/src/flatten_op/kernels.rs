@@ -4,7 +4,7 @@
 
 use rayon::prelude::*;
 
-use super::{FlattenOp, FlattenScratch, BLOCK_ROWS, QUANTUM};
+use super::{FlattenOp, FlattenScratch, RowMask, BLOCK_ROWS, QUANTUM};
 
 /// Blocks per task of a parallel product.
 pub(super) const TASK_BLOCKS: usize = 8;
@@ -57,14 +57,14 @@ impl FlattenOp {
     /// `flat = F alpha` with `D` floats per point and `kernel`: tasks of [`TASK_BLOCKS`]
     /// blocks in parallel, writing the rows in place when the storage order is the point
     /// order, else into `scratch` and then to their points; then `post` (see
-    /// [`FlattenOp::apply_then`]). With a `mask`, only the blocks it holds are computed.
+    /// [`FlattenOp::apply_then`]). With a `mask`, only the rows it holds are computed.
     pub(super) fn apply_n<const D: usize>(
         &self,
         kernel: Kernel,
         alpha: &[f32],
         flat: &mut [f32],
         scratch: &mut FlattenScratch,
-        mask: Option<&[bool]>,
+        mask: Option<&RowMask>,
         post: impl Fn(usize, &mut [f32]) + Sync,
     ) {
         let rows: &mut [f32] = if self.identity {
@@ -78,7 +78,7 @@ impl FlattenOp {
             .for_each_init(Vec::new, |table, (task, out)| {
                 let (out, _) = out.as_chunks_mut::<D>();
                 let first = task * TASK_BLOCKS;
-                let wanted = |b: usize| mask.is_none_or(|m| m[b]);
+                let wanted = |b: usize| mask.is_none_or(|m| m.block(b));
                 let blocks = out.len().div_ceil(BLOCK_ROWS);
                 if !(first..first + blocks).any(wanted) {
                     return;
@@ -99,13 +99,13 @@ impl FlattenOp {
                     }
                 }
                 if self.identity {
-                    if mask.is_none() {
-                        post(first * BLOCK_ROWS, out.as_flattened_mut());
-                    } else {
-                        for (q, rows) in out.chunks_mut(BLOCK_ROWS).enumerate() {
-                            if wanted(first + q) {
-                                post((first + q) * BLOCK_ROWS, rows.as_flattened_mut());
-                            }
+                    match mask {
+                        None => post(first * BLOCK_ROWS, out.as_flattened_mut()),
+                        Some(m) => {
+                            let at = first * BLOCK_ROWS;
+                            m.runs(at, out.len(), |a, b| {
+                                post(a, out[a - at..b - at].as_flattened_mut())
+                            });
                         }
                     }
                 }
@@ -125,7 +125,7 @@ impl FlattenOp {
         first: usize,
         out: &mut [[f32; D]],
         table: &mut Vec<f32>,
-        mask: Option<&[bool]>,
+        mask: Option<&RowMask>,
     ) {
         self.blocks::<D, true>(alpha, first, out, table, mask);
     }
@@ -140,7 +140,7 @@ impl FlattenOp {
         first: usize,
         out: &mut [[f32; 9]],
         table: &mut Vec<f32>,
-        mask: Option<&[bool]>,
+        mask: Option<&RowMask>,
     ) {
         use std::arch::x86_64::{
             __m256, _mm256_add_ps, _mm256_fmadd_ps, _mm256_loadu_ps, _mm256_mul_ps, _mm256_set1_ps,
@@ -149,12 +149,15 @@ impl FlattenOp {
         let scale = 1.0 / QUANTUM as f32;
         for (q, rows) in out.chunks_mut(BLOCK_ROWS).enumerate() {
             let b = first + q;
-            if mask.is_some_and(|m| !m[b]) {
+            if mask.is_some_and(|m| !m.block(b)) {
                 continue;
             }
             self.gather_table(alpha, 9, b, table);
             let (table, _) = table.as_chunks::<9>();
             for (r, o) in rows.iter_mut().enumerate() {
+                if mask.is_some_and(|m| !m.row(b * BLOCK_ROWS + r)) {
+                    continue;
+                }
                 let mut lo: [__m256; ACCUMULATORS] = [_mm256_setzero_ps(); ACCUMULATORS];
                 let mut hi = [0.0f32; ACCUMULATORS];
                 let (quads, rest) = self.row(b * BLOCK_ROWS + r).as_chunks::<ACCUMULATORS>();
@@ -205,7 +208,7 @@ impl FlattenOp {
     }
 
     /// Rows of the blocks from `first` on into `out` (whole blocks but perhaps the last),
-    /// those of the blocks `mask` holds when there is one (the others are left as they are).
+    /// those `mask` holds when there is one (the others are left as they are).
     /// `FMA` sums with `mul_add`, which is a single instruction only where compiled for it.
     #[inline(always)]
     fn blocks<const D: usize, const FMA: bool>(
@@ -214,12 +217,12 @@ impl FlattenOp {
         first: usize,
         out: &mut [[f32; D]],
         table: &mut Vec<f32>,
-        mask: Option<&[bool]>,
+        mask: Option<&RowMask>,
     ) {
         let scale = 1.0 / QUANTUM as f32;
         for (q, rows) in out.chunks_mut(BLOCK_ROWS).enumerate() {
             let b = first + q;
-            if mask.is_some_and(|m| !m[b]) {
+            if mask.is_some_and(|m| !m.block(b)) {
                 continue;
             }
             self.gather_table(alpha, D, b, table);
@@ -236,6 +239,9 @@ impl FlattenOp {
                 }
             };
             for (r, o) in rows.iter_mut().enumerate() {
+                if mask.is_some_and(|m| !m.row(b * BLOCK_ROWS + r)) {
+                    continue;
+                }
                 // Four partial sums (entries 4i, 4i+1, ...), so that consecutive entries do
                 // not wait on each other's additions; combined in a fixed order.
                 let mut acc = [[0.0f32; D]; ACCUMULATORS];
@@ -256,14 +262,14 @@ impl FlattenOp {
     }
 
     /// `flat = F alpha` with any number `dim` of floats per point (the portable kernel,
-    /// without partial sums), through `scratch`; with a `mask`, only its blocks.
+    /// without partial sums), through `scratch`; with a `mask`, only its rows.
     pub(super) fn apply_dyn(
         &self,
         alpha: &[f32],
         dim: usize,
         flat: &mut [f32],
         scratch: &mut FlattenScratch,
-        mask: Option<&[bool]>,
+        mask: Option<&RowMask>,
     ) {
         let scale = 1.0 / QUANTUM as f32;
         scratch.rows.resize(self.points * dim, 0.0);
@@ -272,11 +278,14 @@ impl FlattenOp {
             .par_chunks_mut(BLOCK_ROWS * dim)
             .enumerate()
             .for_each(|(b, out)| {
-                if mask.is_some_and(|m| !m[b]) {
+                if mask.is_some_and(|m| !m.block(b)) {
                     return;
                 }
                 let cols = self.block_cols(b);
                 for (r, o) in out.chunks_exact_mut(dim).enumerate() {
+                    if mask.is_some_and(|m| !m.row(b * BLOCK_ROWS + r)) {
+                        continue;
+                    }
                     o.fill(0.0);
                     for &e in self.row(b * BLOCK_ROWS + r) {
                         let v = (e >> 16) as f32 * scale;

@@ -38,6 +38,7 @@
 
 mod build;
 mod kernels;
+mod row_mask;
 mod sharpen;
 
 #[cfg(doc)]
@@ -45,6 +46,7 @@ use mlt_format::flat_basis::FlatBasis;
 use rayon::prelude::*;
 
 pub use kernels::Kernel;
+pub use row_mask::RowMask;
 pub use sharpen::{
     step_weight, SharpenOp, SharpenScratch, MAX_SHARPEN_STEPS, OVER_RELAXATION, SHARPEN_STEPS,
 };
@@ -204,28 +206,28 @@ impl FlattenOp {
         self.block_offsets.len().saturating_sub(1)
     }
 
-    /// [`FlattenOp::apply`] on the rows of the blocks `mask` holds (`mask[b]` for block `b`
-    /// of [`FlattenOp::block_count`], in storage order): their values are those of the whole
-    /// product, bit for bit, and the rows of the other blocks are left as they were in
+    /// [`FlattenOp::apply`] on the rows `mask` holds (in storage order): their values are
+    /// those of the whole product, bit for bit, and the other rows are left as they were in
     /// `flat` (or, when the storage order is not the point order, take what the last product
-    /// through `scratch` left there). Panics when `mask` is not one flag per block.
+    /// through `scratch` left there). Panics when `mask` is not one flag per row.
     pub fn apply_masked(
         &self,
         alpha: &[f32],
         dim: usize,
         flat: &mut [f32],
         scratch: &mut FlattenScratch,
-        mask: &[bool],
+        mask: &RowMask,
     ) {
-        assert_eq!(mask.len(), self.block_count(), "one flag per block");
+        assert_eq!(mask.rows().len(), self.points, "one flag per row");
         let kernel = Kernel::detect();
         self.apply_then(kernel, alpha, dim, flat, scratch, Some(mask), |_, _| {});
     }
 
-    /// [`FlattenOp::apply_with`] (on the blocks of `mask` only, when there is one), then
+    /// [`FlattenOp::apply_with`] (on the rows of `mask` only, when there is one), then
     /// `post(first, rows)` on the computed rows of the points `first..` (`dim` floats each),
-    /// a task's rows (with a mask, a block's) at a time while they are still in cache when the
-    /// storage order is the point order, else once on all of `flat`.
+    /// a task's rows (with a mask, each run of consecutive computed rows) at a time while they
+    /// are still in cache when the storage order is the point order, else once on all of
+    /// `flat`.
     #[allow(clippy::too_many_arguments)]
     pub(super) fn apply_then(
         &self,
@@ -234,7 +236,7 @@ impl FlattenOp {
         dim: usize,
         flat: &mut [f32],
         scratch: &mut FlattenScratch,
-        mask: Option<&[bool]>,
+        mask: Option<&RowMask>,
         post: impl Fn(usize, &mut [f32]) + Sync,
     ) {
         assert!(alpha.len() == self.hier_points * dim && flat.len() == self.points * dim);

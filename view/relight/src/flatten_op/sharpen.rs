@@ -37,7 +37,7 @@
 
 use mlt_format::flat_basis::FlatBasis;
 
-use super::{FlattenOp, FlattenScratch, Kernel};
+use super::{FlattenOp, FlattenScratch, Kernel, RowMask};
 use crate::error::RelightError;
 
 /// Steps of the correction by default: one plain step and one over-relaxed, which leave the
@@ -148,25 +148,24 @@ impl SharpenOp {
         self.apply_inner(flat, dim, scratch, None);
     }
 
-    /// [`SharpenOp::apply`] where only some rows are wanted: step `k` computes the rows of
-    /// the blocks `masks[k]` holds (blocks of [`crate::flatten_op::BLOCK_ROWS`] flat points,
-    /// one flag per block of `W`, [`FlattenOp::block_count`]). Where each step's blocks hold every
-    /// block that the next step's rows read (and `flat`'s rows are right on the first step's
-    /// blocks and those it reads), the last step's rows equal [`SharpenOp::apply`]'s bit for
-    /// bit; the other rows of `flat` are left with stale values. Panics unless there is one
-    /// mask per step, each of one flag per block, or when `W`'s storage order is not the
-    /// flat point order ([`FlattenOp::in_point_order`]).
+    /// [`SharpenOp::apply`] where only some rows are wanted: step `k` computes the rows
+    /// `masks[k]` holds (one flag per flat point). Where each step's rows hold every row that
+    /// the next step's rows read through `W` and their own (and `flat`'s rows are right on the
+    /// first step's rows and those it reads), the last step's rows equal
+    /// [`SharpenOp::apply`]'s bit for bit; the other rows of `flat` are left with stale
+    /// values. Panics unless there is one mask per step, each of one flag per flat point, or
+    /// when `W`'s storage order is not the flat point order ([`FlattenOp::in_point_order`]).
     pub fn apply_masked(
         &self,
         flat: &mut Vec<f32>,
         dim: usize,
         scratch: &mut SharpenScratch,
-        masks: &[Vec<bool>],
+        masks: &[RowMask],
     ) {
         assert_eq!(masks.len(), self.steps, "one mask per step");
         assert!(masks
             .iter()
-            .all(|m| m.len() == self.smoothing.block_count()));
+            .all(|m| m.rows().len() == self.smoothing.points()));
         assert!(self.smoothing.in_point_order());
         self.apply_inner(flat, dim, scratch, Some(masks));
     }
@@ -176,7 +175,7 @@ impl SharpenOp {
         flat: &mut Vec<f32>,
         dim: usize,
         scratch: &mut SharpenScratch,
-        masks: Option<&[Vec<bool>]>,
+        masks: Option<&[RowMask]>,
     ) {
         if dim == 0 {
             return;
@@ -194,7 +193,7 @@ impl SharpenOp {
             let c0: &[f32] = original;
             sharpened.resize(c0.len(), 0.0);
             let w = step_weight(step);
-            let mask = masks.map(|m| m[step].as_slice());
+            let mask = masks.map(|m| &m[step]);
             self.smoothing
                 .apply_then(kernel, c, dim, sharpened, flatten, mask, |first, rows| {
                     let at = first * dim;
