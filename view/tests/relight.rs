@@ -794,6 +794,29 @@ fn a_view_flattens_only_what_it_needs_and_the_same_bits() {
     assert_eq!(frame.times.direct_ms, 0.0);
     assert_eq!(frame.times.transport_ms, 0.0);
     same_where_seen(&frame, &right);
+    // A view overlapping the right one: only the rows it adds are computed.
+    let near_right = view_of(Vec3::new(hi.x - 0.15 * (hi.x - lo.x), lo.y, hi.z));
+    let alone = {
+        let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), sender_levels, 4).unwrap();
+        r.set_view(Some(&near_right));
+        r.relight(&light).flat_rows
+    };
+    culled.set_view(Some(&near_right));
+    let frame = culled.relight(&light).clone();
+    assert!(!frame.reused);
+    assert!(
+        frame.flat_rows > 0 && frame.flat_rows < alone,
+        "{} of {alone}",
+        frame.flat_rows
+    );
+    same_where_seen(&frame, &near_right);
+    // Back to the left view: what was computed covers it, nothing is recomputed, and its rows
+    // are still right.
+    culled.set_view(Some(&left));
+    let frame = culled.relight(&light).clone();
+    assert!(frame.reused);
+    same_where_seen(&frame, &left);
+    same_where_seen(&frame, &right);
     // No view: every row, as without culling.
     culled.set_view(None);
     let frame = culled.relight(&light).clone();

@@ -52,7 +52,7 @@ use serde::Serialize;
 use crate::bounce_feedback::BounceFeedbackOp;
 use crate::error::RelightError;
 use crate::fine_bounce::FineBounceOp;
-use crate::flatten_op::{FlattenOp, FlattenScratch, SharpenOp, SharpenScratch};
+use crate::flatten_op::{FlattenOp, FlattenScratch, RowMask, SharpenOp, SharpenScratch};
 use crate::frustum::Frustum;
 use crate::light::Light;
 use crate::pull_push_op::PullPushOp;
@@ -590,6 +590,16 @@ fn added(a: &[f32], b: &[f32]) -> Vec<f32> {
     a.iter().zip(b).map(|(x, y)| x + y).collect()
 }
 
+/// What the flat coefficients computed for a light hold of the rows a view needs.
+enum Coverage {
+    /// Every row.
+    Covered,
+    /// All but the rows of the flat points flagged, which no earlier view of the light saw.
+    Adds(Vec<bool>),
+    /// They were culled to another view and cannot be extended: every row must be redone.
+    All,
+}
+
 impl CpuRelighter<'_> {
     /// The rows step 4 computes for the current view, and the view, or `None` for every row
     /// (no view, culling off, or operators whose layout allows none).
@@ -622,23 +632,77 @@ impl CpuRelighter<'_> {
         Some((culling, view))
     }
 
-    /// Whether `frame.flat` holds, for the frame's light, every row the current view needs.
-    fn flat_covers_view(&self) -> bool {
+    /// What `frame.flat` holds, for the frame's light, of the rows the current view needs.
+    fn view_coverage(&self) -> Coverage {
         let Some((done_view, done)) = &self.flat_done else {
-            return true;
+            return Coverage::Covered;
         };
         if self.frame.flat.is_empty() {
-            return true;
+            return Coverage::Covered;
         }
         match self.culling_for_view() {
-            Some((_, view)) if view == done_view => true,
-            Some((culling, view)) => culling
-                .visible(view)
-                .iter()
-                .zip(&done.visible)
-                .all(|(v, d)| !v || *d),
-            None => false,
+            Some((_, view)) if view == done_view => Coverage::Covered,
+            Some((culling, view)) => {
+                let mut seen = culling.visible(view);
+                let mut adds = false;
+                for (s, &d) in seen.iter_mut().zip(&done.visible) {
+                    *s &= !d;
+                    adds |= *s;
+                }
+                if adds {
+                    Coverage::Adds(seen)
+                } else {
+                    Coverage::Covered
+                }
+            }
+            None => Coverage::All,
         }
+    }
+
+    /// Step 4 for a new view under the light `flat` was computed for, which sees the flat
+    /// points `seen` flags besides those earlier views of this light saw: only the rows those
+    /// points need that were not computed, into the buffers the earlier products left (`flat`
+    /// and the sharpening's step inputs); returns the rows the flattening product computed.
+    /// Falls back to [`CpuRelighter::flatten_stage`] when there is nothing to add to.
+    fn extend_flatten_stage(&mut self, i: &[f32], flat: &mut Vec<f32>, seen: Vec<bool>) -> usize {
+        let steps = self
+            .sharpen_op
+            .as_ref()
+            .filter(|_| self.sharpen)
+            .map_or(0, SharpenOp::steps);
+        let done = match &self.flat_done {
+            Some((_, done)) if self.flatten_on_cpu && done.sharpen.len() == steps => done.clone(),
+            _ => return self.flatten_stage(i, flat),
+        };
+        let Some((culling, view)) = self.culling_for_view() else {
+            return self.flatten_stage(i, flat);
+        };
+        let (view, new) = (*view, culling.masks_for(seen, steps));
+        let Some(op) = self.flatten_op.as_ref() else {
+            return self.flatten_stage(i, flat);
+        };
+        let added = new.flatten.minus(&done.flatten);
+        match self.sharpen_op.as_ref().filter(|_| self.sharpen) {
+            Some(sharpen) => {
+                op.apply_masked(
+                    i,
+                    LINK_DIM,
+                    self.sharpen_scratch.original_mut(),
+                    &mut self.flatten_scratch,
+                    &added,
+                );
+                let added_steps: Vec<RowMask> = new
+                    .sharpen
+                    .iter()
+                    .zip(&done.sharpen)
+                    .map(|(n, d)| n.minus(d))
+                    .collect();
+                sharpen.extend_masked(flat, LINK_DIM, &mut self.sharpen_scratch, &added_steps);
+            }
+            None => op.apply_masked(i, LINK_DIM, flat, &mut self.flatten_scratch, &added),
+        }
+        self.flat_done = Some((view, Arc::new(done.union(&new))));
+        added.count()
     }
 
     /// Step 4: `flat` from `i`, on the rows the view needs; returns the rows the flattening
@@ -702,14 +766,18 @@ impl Relight for CpuRelighter<'_> {
     fn relight(&mut self, light: &Light) -> &Frame {
         let same_light = self.last.as_ref() == Some(light);
         if same_light && self.lag_settled {
-            if self.flat_covers_view() {
+            let t = Instant::now();
+            let coverage = self.view_coverage();
+            if let Coverage::Covered = coverage {
                 self.frame.reused = true;
             } else {
                 // Only step 4, for the rows the new view adds, from the kept `i`.
-                let t = Instant::now();
                 let i = std::mem::take(&mut self.frame.i);
                 let mut flat = std::mem::take(&mut self.frame.flat);
-                self.frame.flat_rows = self.flatten_stage(&i, &mut flat);
+                self.frame.flat_rows = match coverage {
+                    Coverage::Adds(seen) => self.extend_flatten_stage(&i, &mut flat, seen),
+                    _ => self.flatten_stage(&i, &mut flat),
+                };
                 self.frame.i = i;
                 self.frame.flat = flat;
                 self.frame.times = StageTimes {

@@ -57,6 +57,36 @@ pub struct ViewMasks {
 }
 
 impl ViewMasks {
+    /// The rows either set of masks holds, product by product. Panics unless both are for
+    /// as many sharpening steps and flat points.
+    pub fn union(&self, other: &ViewMasks) -> ViewMasks {
+        assert_eq!(
+            self.sharpen.len(),
+            other.sharpen.len(),
+            "masks of one pipeline"
+        );
+        assert_eq!(
+            self.visible.len(),
+            other.visible.len(),
+            "masks of one flat basis"
+        );
+        ViewMasks {
+            flatten: self.flatten.union(&other.flatten),
+            sharpen: self
+                .sharpen
+                .iter()
+                .zip(&other.sharpen)
+                .map(|(a, b)| a.union(b))
+                .collect(),
+            visible: self
+                .visible
+                .iter()
+                .zip(&other.visible)
+                .map(|(&a, &b)| a || b)
+                .collect(),
+        }
+    }
+
     /// Rows the flattening product computes.
     pub fn flatten_rows(&self) -> usize {
         self.flatten.count()
@@ -213,11 +243,20 @@ impl FlatCulling {
     /// the flattening (0: none). Panics when `steps` is above 0 and `W`'s columns were not
     /// given to [`FlatCulling::build`].
     pub fn masks(&self, frustum: &Frustum, steps: usize) -> ViewMasks {
+        self.masks_for(self.visible(frustum), steps)
+    }
+
+    /// [`FlatCulling::masks`] for the flat points `seen` flags (one flag per point) instead of
+    /// those a frustum meets. Dilation distributes over unions, so the masks of the points a
+    /// new view adds to earlier views', joined to the earlier views' masks, are the masks of
+    /// all the views: a camera move dilates only what it adds.
+    pub fn masks_for(&self, seen: Vec<bool>, steps: usize) -> ViewMasks {
         assert!(
             steps == 0 || !self.reader_offsets.is_empty(),
             "sharpening steps without W's structure"
         );
-        let visible = self.visible(frustum);
+        assert_eq!(seen.len(), self.centres.len(), "one flag per flat point");
+        let visible = seen;
         let mut rows = vec![visible.clone()];
         for _ in 0..steps {
             let wider = self.dilate(rows.last().expect("one mask at least"));
@@ -309,6 +348,65 @@ mod tests {
             }
             assert!(seen > 0);
         }
+    }
+
+    /// A second view under the same coefficients computes only the rows it adds, into the
+    /// buffers the first view's products left, and its rows come out as the whole product's,
+    /// bit for bit; a third view, covered by the two, adds nothing.
+    #[test]
+    fn a_second_view_adds_only_its_own_rows_with_the_same_bits() {
+        let ib = plane_basis(6, 3);
+        let fb = all(&ib);
+        let op = FlattenOp::build(&ib, &fb, None).unwrap();
+        let sharpen = SharpenOp::build(&fb).unwrap();
+        let culling = FlatCulling::build(&fb, &op, Some(&sharpen)).unwrap();
+        let alpha = coefficients(&ib, LINK_DIM);
+        let mut whole = vec![0.0; fb.len() * LINK_DIM];
+        op.apply(&alpha, LINK_DIM, &mut whole, &mut FlattenScratch::default());
+        sharpen.apply(&mut whole, LINK_DIM, &mut SharpenScratch::default());
+        let steps = sharpen.steps();
+        let first = culling.masks(&looking_down(0.3, 0.3, 0.1, 0.8), steps);
+        let second = culling.masks(&looking_down(0.45, 0.35, 0.1, 0.8), steps);
+        let mut flat = vec![f32::NAN; fb.len() * LINK_DIM];
+        let (mut scratch, mut fs) = (SharpenScratch::default(), FlattenScratch::default());
+        op.apply_masked(&alpha, LINK_DIM, &mut flat, &mut fs, &first.flatten);
+        sharpen.apply_masked(&mut flat, LINK_DIM, &mut scratch, &first.sharpen);
+        let added = second.flatten.minus(&first.flatten);
+        // The views overlap: some rows are new, not all.
+        assert!(added.count() > 0 && added.count() < second.flatten.count());
+        op.apply_masked(&alpha, LINK_DIM, scratch.original_mut(), &mut fs, &added);
+        let added_steps: Vec<RowMask> = second
+            .sharpen
+            .iter()
+            .zip(&first.sharpen)
+            .map(|(n, d)| n.minus(d))
+            .collect();
+        sharpen.extend_masked(&mut flat, LINK_DIM, &mut scratch, &added_steps);
+        let both = first.union(&second);
+        // Dilation distributes over unions: the points the second view adds, dilated alone and
+        // joined to the first view's masks, give the masks of both views.
+        let adds: Vec<bool> = second
+            .visible
+            .iter()
+            .zip(&first.visible)
+            .map(|(&s, &f)| s && !f)
+            .collect();
+        assert!(adds.iter().any(|&a| a));
+        assert_eq!(first.union(&culling.masks_for(adds, steps)), both);
+        for j in (0..fb.len()).filter(|&j| both.visible[j]) {
+            for d in 0..LINK_DIM {
+                let (got, want) = (flat[j * LINK_DIM + d], whole[j * LINK_DIM + d]);
+                assert_eq!(got.to_bits(), want.to_bits(), "point {j}, {d}");
+            }
+        }
+        // Within both views: nothing to add.
+        let inside = culling.masks(&looking_down(0.4, 0.33, 0.05, 0.3), steps);
+        assert!(inside.flatten.minus(&both.flatten).count() == 0);
+        assert!(inside
+            .sharpen
+            .iter()
+            .zip(&both.sharpen)
+            .all(|(n, d)| n.within(d)));
     }
 
     /// The scatter through `W`'s rows and the gather through its columns dilate alike, on

@@ -61,6 +61,30 @@ impl RowMask {
             .sum()
     }
 
+    /// The rows this set or `other` holds. Panics unless both have as many rows.
+    pub fn union(&self, other: &RowMask) -> RowMask {
+        assert_eq!(self.rows.len(), other.rows.len(), "masks of one product");
+        RowMask::from_rows(
+            self.rows
+                .iter()
+                .zip(&other.rows)
+                .map(|(&a, &b)| a || b)
+                .collect(),
+        )
+    }
+
+    /// The rows this set holds and `other` does not. Panics unless both have as many rows.
+    pub fn minus(&self, other: &RowMask) -> RowMask {
+        assert_eq!(self.rows.len(), other.rows.len(), "masks of one product");
+        RowMask::from_rows(
+            self.rows
+                .iter()
+                .zip(&other.rows)
+                .map(|(&a, &b)| a && !b)
+                .collect(),
+        )
+    }
+
     /// Whether `other` holds every row this one does.
     pub fn within(&self, other: &RowMask) -> bool {
         self.rows.len() == other.rows.len()
@@ -128,5 +152,14 @@ mod tests {
         let whole = RowMask::from_blocks(m.blocks(), n);
         assert!(m.within(&whole) && !whole.within(&m));
         assert_eq!(whole.count(), whole.block_rows());
+        // Set algebra, row by row.
+        let first = RowMask::from_blocks(&[true, false, false, false], n);
+        let (both, rest) = (m.union(&first), m.minus(&first));
+        assert_eq!(both.count(), BLOCK_ROWS + 2);
+        assert_eq!(rest.count(), 2);
+        assert_eq!(rest.blocks(), &[false, false, true, true]);
+        assert!(m.within(&both) && first.within(&both) && rest.within(&m));
+        assert_eq!(rest.union(&first), both);
+        assert_eq!(m.minus(&m).count(), 0);
     }
 }

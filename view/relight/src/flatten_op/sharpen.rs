@@ -81,12 +81,21 @@ impl Default for SharpenOp {
     }
 }
 
-/// Buffers a [`SharpenOp::apply`] reuses from frame to frame.
+/// Buffers a [`SharpenOp::apply`] reuses from frame to frame: every step's input `c_k`
+/// (`c_0` to `c_{s-1}`), as the last run left them, so that a later run can add rows
+/// ([`SharpenOp::extend_masked`]).
 #[derive(Clone, Debug, Default)]
 pub struct SharpenScratch {
-    sharpened: Vec<f32>,
-    original: Vec<f32>,
+    steps: Vec<Vec<f32>>,
     flatten: FlattenScratch,
+}
+
+impl SharpenScratch {
+    /// `c_0` as the last run left it (empty before the first): the rows a
+    /// [`SharpenOp::extend_masked`] adds are written here first, by the flattening product.
+    pub fn original_mut(&mut self) -> &mut [f32] {
+        self.steps.first_mut().map_or(&mut [], |c| c.as_mut_slice())
+    }
 }
 
 impl SharpenOp {
@@ -145,7 +154,7 @@ impl SharpenOp {
     /// order, so the result is the same for any thread count. Panics when `flat` is not
     /// `points * dim` long.
     pub fn apply(&self, flat: &mut Vec<f32>, dim: usize, scratch: &mut SharpenScratch) {
-        self.apply_inner(flat, dim, scratch, None);
+        self.apply_inner(flat, dim, scratch, None, false);
     }
 
     /// [`SharpenOp::apply`] where only some rows are wanted: step `k` computes the rows
@@ -167,7 +176,36 @@ impl SharpenOp {
             .iter()
             .all(|m| m.rows().len() == self.smoothing.points()));
         assert!(self.smoothing.in_point_order());
-        self.apply_inner(flat, dim, scratch, Some(masks));
+        self.apply_inner(flat, dim, scratch, Some(masks), false);
+    }
+
+    /// Adds rows to the result of the last [`SharpenOp::apply_masked`] (or of the last
+    /// extension) for the same `c_0`: step `k` computes the rows `added[k]` holds from the
+    /// step inputs that run left in `scratch`, into them and, for the last step, into `flat`,
+    /// which must hold that run's result. The rows `added[0]` reads must have been added to
+    /// `c_0` first, through [`SharpenScratch::original_mut`]. Where each step's rows, those
+    /// computed before and those added, hold every row the next step's added rows read, the
+    /// added rows of the last step equal [`SharpenOp::apply`]'s bit for bit (a camera move
+    /// under a held light computes only the rows the new view adds). Panics on the masks as
+    /// [`SharpenOp::apply_masked`] does, or when no run for these steps preceded.
+    pub fn extend_masked(
+        &self,
+        flat: &mut Vec<f32>,
+        dim: usize,
+        scratch: &mut SharpenScratch,
+        added: &[RowMask],
+    ) {
+        assert_eq!(added.len(), self.steps, "one mask per step");
+        assert!(added
+            .iter()
+            .all(|m| m.rows().len() == self.smoothing.points()));
+        assert!(self.smoothing.in_point_order());
+        assert!(
+            scratch.steps.len() == self.steps
+                && scratch.steps.iter().all(|c| c.len() == flat.len()),
+            "an extension follows a run for the same steps"
+        );
+        self.apply_inner(flat, dim, scratch, Some(added), true);
     }
 
     fn apply_inner(
@@ -176,32 +214,41 @@ impl SharpenOp {
         dim: usize,
         scratch: &mut SharpenScratch,
         masks: Option<&[RowMask]>,
+        extend: bool,
     ) {
         if dim == 0 {
             return;
         }
-        let SharpenScratch {
-            sharpened,
-            original,
-            flatten,
-        } = scratch;
-        // `original` holds `c_0` through the steps; `flat` holds `c_k` from the first on.
-        std::mem::swap(flat, original);
+        let SharpenScratch { steps, flatten } = scratch;
+        if !extend {
+            // `c_0` comes in `flat` and stays in `steps[0]`; `flat` receives `c_s` (into the
+            // buffer `c_0` of the last run held: every row the run wants is overwritten).
+            steps.resize_with(self.steps, Vec::new);
+            std::mem::swap(flat, &mut steps[0]);
+            let n = steps[0].len();
+            for c in steps[1..].iter_mut() {
+                c.resize(n, 0.0);
+            }
+            flat.resize(n, 0.0);
+        }
         let kernel = Kernel::detect();
         for step in 0..self.steps {
-            let c: &[f32] = if step == 0 { original } else { flat };
-            let c0: &[f32] = original;
-            sharpened.resize(c0.len(), 0.0);
+            let (done, next) = steps.split_at_mut(step + 1);
+            let (c0, c): (&[f32], &[f32]) = (&done[0], &done[step]);
+            let out: &mut [f32] = if step + 1 == self.steps {
+                flat
+            } else {
+                &mut next[0]
+            };
             let w = step_weight(step);
             let mask = masks.map(|m| &m[step]);
             self.smoothing
-                .apply_then(kernel, c, dim, sharpened, flatten, mask, |first, rows| {
+                .apply_then(kernel, c, dim, out, flatten, mask, |first, rows| {
                     let at = first * dim;
                     for ((o, &own), &orig) in rows.iter_mut().zip(&c[at..]).zip(&c0[at..]) {
                         *o = own + w * (orig - *o);
                     }
                 });
-            std::mem::swap(flat, sharpened);
         }
     }
 }
