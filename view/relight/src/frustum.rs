@@ -47,4 +47,61 @@ impl Frustum {
             n.dot(v) + p.w >= 0.0
         })
     }
+
+    /// Whether the axis-aligned box `lo..hi` lies wholly inside the frustum (on the inner side
+    /// of every plane), so that everything in it meets it.
+    pub fn contains_box(&self, lo: Vec3, hi: Vec3) -> bool {
+        self.planes.iter().all(|p| {
+            let n = p.truncate();
+            // The box corner nearest along the plane's normal.
+            let v = Vec3::select(n.cmpge(Vec3::ZERO), lo, hi);
+            n.dot(v) + p.w >= 0.0
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A camera at the origin looking down -z, 90 degrees, square, planes at 0.1 and 10.
+    fn frustum() -> Frustum {
+        let view = glam::camera::rh::view::look_at_mat4(Vec3::ZERO, -Vec3::Z, Vec3::Y);
+        let proj = glam::camera::rh::proj::directx::perspective(
+            std::f32::consts::FRAC_PI_2,
+            1.0,
+            0.1,
+            10.0,
+        );
+        Frustum::from_view_proj(&(proj * view))
+    }
+
+    #[test]
+    fn boxes_inside_across_and_outside() {
+        let f = frustum();
+        let h = Vec3::splat(0.2);
+        // Around a point 5 ahead: inside (the side planes are 5 away there).
+        let c = Vec3::new(0.0, 0.0, -5.0);
+        assert!(f.contains_box(c - h, c + h) && f.meets_box(c - h, c + h));
+        // Across the right plane (x = -z at 45 degrees): meets, not inside.
+        let c = Vec3::new(5.0, 0.0, -5.0);
+        assert!(!f.contains_box(c - h, c + h) && f.meets_box(c - h, c + h));
+        // Behind the camera: neither.
+        let c = Vec3::new(0.0, 0.0, 5.0);
+        assert!(!f.contains_box(c - h, c + h) && !f.meets_box(c - h, c + h));
+        // Across the far plane: meets, not inside.
+        let c = Vec3::new(0.0, 0.0, -10.0);
+        assert!(!f.contains_box(c - h, c + h) && f.meets_box(c - h, c + h));
+        // Every point of a box inside meets the frustum, as a sphere of any radius.
+        let (lo, hi) = (Vec3::new(-1.0, -1.0, -4.0), Vec3::new(1.0, 1.5, -3.0));
+        assert!(f.contains_box(lo, hi));
+        for i in 0..=4 {
+            for j in 0..=4 {
+                for k in 0..=4 {
+                    let t = Vec3::new(i as f32, j as f32, k as f32) / 4.0;
+                    assert!(f.meets_sphere(lo + t * (hi - lo), 0.0));
+                }
+            }
+        }
+    }
 }

@@ -192,6 +192,12 @@ impl FlatCulling {
                 if !frustum.meets_box(self.lo[block], self.hi[block]) {
                     return;
                 }
+                // A block wholly inside: every point's centre is, so its sphere meets the view
+                // (the radii's margin covers the rounding of the corner test).
+                if frustum.contains_box(self.lo[block], self.hi[block]) {
+                    out.fill(true);
+                    return;
+                }
                 let at = block * BLOCK_ROWS;
                 for (k, v) in out.iter_mut().enumerate() {
                     *v = frustum.meets_sphere(self.centres[at + k], self.radii[at + k]);
@@ -303,7 +309,13 @@ mod tests {
         op.apply(&alpha, LINK_DIM, &mut whole, &mut FlattenScratch::default());
         sharpen.apply(&mut whole, LINK_DIM, &mut SharpenScratch::default());
         let b = &fb.ib.basis;
-        for (x, y, h) in [(0.2, 0.3, 0.1), (0.8, 0.5, 0.1), (0.5, 0.5, 0.05)] {
+        let mut inside = 0;
+        for (x, y, h) in [
+            (0.2, 0.3, 0.1),
+            (0.8, 0.5, 0.1),
+            (0.5, 0.5, 0.05),
+            (0.5, 0.5, 0.4),
+        ] {
             let frustum = looking_down(x, y, h, 0.8);
             let masks = culling.masks(&frustum, sharpen.steps());
             assert_eq!(masks.sharpen.len(), sharpen.steps());
@@ -315,6 +327,14 @@ mod tests {
                 .all(|(next, before)| next.within(before)));
             let last = masks.sharpen.last().expect("steps");
             assert_eq!(last.rows(), masks.visible.as_slice());
+            // Blocks wholly inside are taken whole: the same points as testing each sphere.
+            inside += (0..culling.blocks())
+                .filter(|&k| frustum.contains_box(culling.lo[k], culling.hi[k]))
+                .count();
+            for j in 0..fb.len() {
+                let own = frustum.meets_sphere(culling.centres[j], culling.radii[j]);
+                assert_eq!(masks.visible[j], own, "point {j}");
+            }
             let rows = masks.flatten_rows();
             assert!(rows < fb.len() && last.count() > 0, "{rows}");
             // Rows, not whole blocks: fewer rows than the blocks hold.
@@ -348,6 +368,7 @@ mod tests {
             }
             assert!(seen > 0);
         }
+        assert!(inside > 0, "no block wholly inside a view");
     }
 
     /// A second view under the same coefficients computes only the rows it adds, into the

@@ -147,28 +147,19 @@ impl FlattenOp {
             _mm256_setzero_ps, _mm256_storeu_ps,
         };
         let scale = 1.0 / QUANTUM as f32;
-        for (q, rows) in out.chunks_mut(BLOCK_ROWS).enumerate() {
-            let b = first + q;
-            if mask.is_some_and(|m| !m.block(b)) {
-                continue;
-            }
-            self.gather_table(alpha, 9, b, table);
-            let (table, _) = table.as_chunks::<9>();
-            for (r, o) in rows.iter_mut().enumerate() {
-                if mask.is_some_and(|m| !m.row(b * BLOCK_ROWS + r)) {
-                    continue;
-                }
+        let (alpha9, _) = alpha.as_chunks::<9>();
+        // One row's sum, `$col(e)` the coefficients of entry `e`'s column: a macro, so that
+        // the intrinsics expand inside this function, which is compiled with their features.
+        macro_rules! sum_row {
+            ($row:expr, $o:expr, $col:expr) => {{
                 let mut lo: [__m256; ACCUMULATORS] = [_mm256_setzero_ps(); ACCUMULATORS];
                 let mut hi = [0.0f32; ACCUMULATORS];
-                let (quads, rest) = self.row(b * BLOCK_ROWS + r).as_chunks::<ACCUMULATORS>();
+                let (quads, rest) = $row.as_chunks::<ACCUMULATORS>();
                 for quad in quads {
                     for a in 0..ACCUMULATORS {
                         let e = quad[a];
                         let v = (e >> 16) as f32;
-                        // SAFETY: every local column of a block is below its number of
-                        // columns (`build` numbers them 0, 1, ... as it meets them), and the
-                        // table holds one row per column.
-                        let c = unsafe { table.get_unchecked((e & 0xffff) as usize) };
+                        let c: &[f32; 9] = $col(e);
                         // SAFETY: `c` is a `[f32; 9]`: its first 8 floats are readable.
                         let c8 = unsafe { _mm256_loadu_ps(c.as_ptr()) };
                         lo[a] = _mm256_fmadd_ps(_mm256_set1_ps(v), c8, lo[a]);
@@ -177,8 +168,7 @@ impl FlattenOp {
                 }
                 for (a, &e) in rest.iter().enumerate() {
                     let v = (e >> 16) as f32;
-                    // SAFETY: as above.
-                    let c = unsafe { table.get_unchecked((e & 0xffff) as usize) };
+                    let c: &[f32; 9] = $col(e);
                     // SAFETY: as above.
                     let c8 = unsafe { _mm256_loadu_ps(c.as_ptr()) };
                     lo[a] = _mm256_fmadd_ps(_mm256_set1_ps(v), c8, lo[a]);
@@ -186,11 +176,57 @@ impl FlattenOp {
                 }
                 let sum = _mm256_add_ps(_mm256_add_ps(lo[0], lo[1]), _mm256_add_ps(lo[2], lo[3]));
                 let sum = _mm256_mul_ps(sum, _mm256_set1_ps(scale));
+                let o: &mut [f32; 9] = $o;
                 // SAFETY: `o` is a `[f32; 9]`: its first 8 floats are writable.
                 unsafe { _mm256_storeu_ps(o.as_mut_ptr(), sum) };
                 o[8] = ((hi[0] + hi[1]) + (hi[2] + hi[3])) * scale;
+            }};
+        }
+        for (q, rows) in out.chunks_mut(BLOCK_ROWS).enumerate() {
+            let b = first + q;
+            if mask.is_some_and(|m| !m.block(b)) {
+                continue;
+            }
+            if let Some(m) = mask.filter(|m| self.few_rows(m, b)) {
+                // Few rows wanted: their columns read where they are, without the table (the
+                // same values, summed in the same order: the same bits).
+                let cols = self.block_cols(b);
+                for (r, o) in rows.iter_mut().enumerate() {
+                    if m.row(b * BLOCK_ROWS + r) {
+                        sum_row!(self.row(b * BLOCK_ROWS + r), o, |e: u32| &alpha9
+                            [cols[(e & 0xffff) as usize] as usize]);
+                    }
+                }
+                continue;
+            }
+            self.gather_table(alpha, 9, b, table);
+            let (table, _) = table.as_chunks::<9>();
+            for (r, o) in rows.iter_mut().enumerate() {
+                if mask.is_some_and(|m| !m.row(b * BLOCK_ROWS + r)) {
+                    continue;
+                }
+                // SAFETY: every local column of a block is below its number of columns
+                // (`build` numbers them 0, 1, ... as it meets them), and the table holds one
+                // row per column.
+                sum_row!(self.row(b * BLOCK_ROWS + r), o, |e: u32| unsafe {
+                    table.get_unchecked((e & 0xffff) as usize)
+                });
             }
         }
+    }
+
+    /// Whether the rows `mask` holds in block `b` read fewer entries than the block has
+    /// columns: then reading their columns in place costs less than gathering the block's
+    /// table of columns first.
+    #[inline]
+    fn few_rows(&self, mask: &RowMask, b: usize) -> bool {
+        let first = b * BLOCK_ROWS;
+        let end = (first + BLOCK_ROWS).min(self.points);
+        let entries: usize = (first..end)
+            .filter(|&r| mask.row(r))
+            .map(|r| (self.row_offsets[r + 1] - self.row_offsets[r]) as usize)
+            .sum();
+        entries < self.block_cols(b).len()
     }
 
     /// Copies the coefficients of block `b`'s local columns, `dim` per column, into `table`:
@@ -225,11 +261,23 @@ impl FlattenOp {
             if mask.is_some_and(|m| !m.block(b)) {
                 continue;
             }
-            self.gather_table(alpha, D, b, table);
+            // Few rows wanted: their columns read where they are, without the table (the same
+            // values, summed in the same order: the same bits).
+            let direct = mask.is_some_and(|m| self.few_rows(m, b));
+            if !direct {
+                self.gather_table(alpha, D, b, table);
+            }
             let (table, _) = table.as_chunks::<D>();
+            let (alpha_d, _) = alpha.as_chunks::<D>();
+            let cols = self.block_cols(b);
             let add = |acc: &mut [f32; D], e: u32| {
                 let v = (e >> 16) as f32;
-                let c = &table[(e & 0xffff) as usize];
+                let l = (e & 0xffff) as usize;
+                let c = if direct {
+                    &alpha_d[cols[l] as usize]
+                } else {
+                    &table[l]
+                };
                 for d in 0..D {
                     acc[d] = if FMA {
                         v.mul_add(c[d], acc[d])
@@ -328,6 +376,61 @@ mod tests {
             let scale = runs[0].iter().fold(0.0f32, |m, v| m.max(v.abs()));
             for (k, run) in kernels.iter().zip(&runs) {
                 assert!(max_diff(&runs[0], run) <= 1e-6 * scale, "dim {dim}, {k:?}");
+            }
+        }
+    }
+
+    /// Masked products give the whole product's bits on the rows they hold, with each kernel,
+    /// whether a block's rows are many (summed from the block's table of columns) or few
+    /// (read where they are), and leave the other rows alone.
+    #[test]
+    fn masked_rows_have_the_whole_products_bits_few_or_many() {
+        let ib = plane_basis(6, 3);
+        let op = FlattenOp::build(&ib, &all(&ib), None).unwrap();
+        assert!(op.in_point_order() && op.block_count() >= 4);
+        let n = op.points();
+        #[cfg_attr(not(target_arch = "x86_64"), allow(unused_mut))]
+        let mut kernels = vec![Kernel::Portable];
+        #[cfg(target_arch = "x86_64")]
+        kernels.extend([Kernel::Avx2Fma].into_iter().filter(|k| k.supported()));
+        // Block 0: every row; block 1: every third; the others: one row each.
+        let rows: Vec<bool> = (0..n)
+            .map(|r| match r / BLOCK_ROWS {
+                0 => true,
+                1 => r % 3 == 0,
+                _ => r % BLOCK_ROWS == 7,
+            })
+            .collect();
+        let mask = RowMask::from_rows(rows);
+        let few = (0..op.block_count())
+            .filter(|&b| op.few_rows(&mask, b))
+            .count();
+        assert!(!op.few_rows(&mask, 0) && few >= 2, "{few}");
+        for dim in [3, 9] {
+            let alpha = coefficients(&ib, dim);
+            for &k in &kernels {
+                let mut whole = vec![0.0; n * dim];
+                op.apply_with(k, &alpha, dim, &mut whole, &mut FlattenScratch::default());
+                let mut flat = vec![f32::NAN; n * dim];
+                op.apply_then(
+                    k,
+                    &alpha,
+                    dim,
+                    &mut flat,
+                    &mut FlattenScratch::default(),
+                    Some(&mask),
+                    |_, _| {},
+                );
+                for r in 0..n {
+                    for d in 0..dim {
+                        let (got, want) = (flat[r * dim + d], whole[r * dim + d]);
+                        if mask.row(r) {
+                            assert_eq!(got.to_bits(), want.to_bits(), "{k:?} {dim}: row {r}");
+                        } else {
+                            assert!(got.is_nan(), "{k:?} {dim}: row {r} written");
+                        }
+                    }
+                }
             }
         }
     }
