@@ -52,7 +52,7 @@ use serde::Serialize;
 use crate::bounce_feedback::BounceFeedbackOp;
 use crate::error::RelightError;
 use crate::fine_bounce::FineBounceOp;
-use crate::flatten_op::{FlattenOp, FlattenScratch, RowMask, SharpenOp, SharpenScratch};
+use crate::flatten_op::{FlattenOp, FlattenScratch, SharpenOp, SharpenScratch};
 use crate::frustum::Frustum;
 use crate::light::Light;
 use crate::pull_push_op::PullPushOp;
@@ -603,12 +603,16 @@ enum Coverage {
 impl CpuRelighter<'_> {
     /// The rows step 4 computes for the current view, and the view, or `None` for every row
     /// (no view, culling off, or operators whose layout allows none).
-    fn view_masks(&mut self) -> Option<(Frustum, Arc<ViewMasks>)> {
-        let steps = self
-            .sharpen_op
+    /// The sharpening steps step 4 runs (0: none).
+    fn sharpen_steps(&self) -> usize {
+        self.sharpen_op
             .as_ref()
             .filter(|_| self.sharpen)
-            .map_or(0, SharpenOp::steps);
+            .map_or(0, SharpenOp::steps)
+    }
+
+    fn view_masks(&mut self) -> Option<(Frustum, Arc<ViewMasks>)> {
+        let steps = self.sharpen_steps();
         let (culling, view) = self.culling_for_view()?;
         let view = *view;
         if let Some((v, s, m)) = &self.masks_cache {
@@ -665,11 +669,7 @@ impl CpuRelighter<'_> {
     /// and the sharpening's step inputs); returns the rows the flattening product computed.
     /// Falls back to [`CpuRelighter::flatten_stage`] when there is nothing to add to.
     fn extend_flatten_stage(&mut self, i: &[f32], flat: &mut Vec<f32>, seen: Vec<bool>) -> usize {
-        let steps = self
-            .sharpen_op
-            .as_ref()
-            .filter(|_| self.sharpen)
-            .map_or(0, SharpenOp::steps);
+        let steps = self.sharpen_steps();
         let done = match &self.flat_done {
             Some((_, done)) if self.flatten_on_cpu && done.sharpen.len() == steps => done.clone(),
             _ => return self.flatten_stage(i, flat),
@@ -681,7 +681,7 @@ impl CpuRelighter<'_> {
         let Some(op) = self.flatten_op.as_ref() else {
             return self.flatten_stage(i, flat);
         };
-        let added = new.flatten.minus(&done.flatten);
+        let added = new.minus(&done);
         match self.sharpen_op.as_ref().filter(|_| self.sharpen) {
             Some(sharpen) => {
                 op.apply_masked(
@@ -689,20 +689,14 @@ impl CpuRelighter<'_> {
                     LINK_DIM,
                     self.sharpen_scratch.original_mut(),
                     &mut self.flatten_scratch,
-                    &added,
+                    &added.flatten,
                 );
-                let added_steps: Vec<RowMask> = new
-                    .sharpen
-                    .iter()
-                    .zip(&done.sharpen)
-                    .map(|(n, d)| n.minus(d))
-                    .collect();
-                sharpen.extend_masked(flat, LINK_DIM, &mut self.sharpen_scratch, &added_steps);
+                sharpen.extend_masked(flat, LINK_DIM, &mut self.sharpen_scratch, &added.sharpen);
             }
-            None => op.apply_masked(i, LINK_DIM, flat, &mut self.flatten_scratch, &added),
+            None => op.apply_masked(i, LINK_DIM, flat, &mut self.flatten_scratch, &added.flatten),
         }
         self.flat_done = Some((view, Arc::new(done.union(&new))));
-        added.count()
+        added.flatten_rows()
     }
 
     /// Step 4: `flat` from `i`, on the rows the view needs; returns the rows the flattening

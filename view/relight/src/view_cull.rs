@@ -60,6 +60,22 @@ impl ViewMasks {
     /// The rows either set of masks holds, product by product. Panics unless both are for
     /// as many sharpening steps and flat points.
     pub fn union(&self, other: &ViewMasks) -> ViewMasks {
+        self.zip_with(other, RowMask::union, |a, b| a || b)
+    }
+
+    /// The rows these masks hold and `other` does not, product by product (what a view adds
+    /// to what was computed for `other`). Panics as [`ViewMasks::union`] does.
+    pub fn minus(&self, other: &ViewMasks) -> ViewMasks {
+        self.zip_with(other, RowMask::minus, |a, b| a && !b)
+    }
+
+    /// `rows` on each product's masks and `flag` on the visible points.
+    fn zip_with(
+        &self,
+        other: &ViewMasks,
+        rows: fn(&RowMask, &RowMask) -> RowMask,
+        flag: fn(bool, bool) -> bool,
+    ) -> ViewMasks {
         assert_eq!(
             self.sharpen.len(),
             other.sharpen.len(),
@@ -71,18 +87,18 @@ impl ViewMasks {
             "masks of one flat basis"
         );
         ViewMasks {
-            flatten: self.flatten.union(&other.flatten),
+            flatten: rows(&self.flatten, &other.flatten),
             sharpen: self
                 .sharpen
                 .iter()
                 .zip(&other.sharpen)
-                .map(|(a, b)| a.union(b))
+                .map(|(a, b)| rows(a, b))
                 .collect(),
             visible: self
                 .visible
                 .iter()
                 .zip(&other.visible)
-                .map(|(&a, &b)| a || b)
+                .map(|(&a, &b)| flag(a, b))
                 .collect(),
         }
     }
@@ -138,12 +154,12 @@ impl FlatCulling {
                     [parts.block_offsets[block] as usize..parts.block_offsets[block + 1] as usize];
                 parts.entries[parts.row_offsets[j] as usize..parts.row_offsets[j + 1] as usize]
                     .iter()
-                    .map(move |&e| cols[(e & 0xffff) as usize] as usize)
+                    .map(move |&e| cols[(e & 0xffff) as usize])
             };
             read_offsets.reserve(points + 1);
             read_offsets.push(0u32);
             for j in 0..points {
-                reads.extend(row_cols(j).map(|k| k as u32));
+                reads.extend(row_cols(j));
                 read_offsets.push(reads.len() as u32);
             }
             // Transposed by counting: readers of each column in ascending row order.
@@ -252,17 +268,16 @@ impl FlatCulling {
         self.masks_for(self.visible(frustum), steps)
     }
 
-    /// [`FlatCulling::masks`] for the flat points `seen` flags (one flag per point) instead of
+    /// [`FlatCulling::masks`] for the flat points `visible` flags (one per point) instead of
     /// those a frustum meets. Dilation distributes over unions, so the masks of the points a
     /// new view adds to earlier views', joined to the earlier views' masks, are the masks of
     /// all the views: a camera move dilates only what it adds.
-    pub fn masks_for(&self, seen: Vec<bool>, steps: usize) -> ViewMasks {
+    pub fn masks_for(&self, visible: Vec<bool>, steps: usize) -> ViewMasks {
         assert!(
             steps == 0 || !self.reader_offsets.is_empty(),
             "sharpening steps without W's structure"
         );
-        assert_eq!(seen.len(), self.centres.len(), "one flag per flat point");
-        let visible = seen;
+        assert_eq!(visible.len(), self.centres.len(), "one flag per flat point");
         let mut rows = vec![visible.clone()];
         for _ in 0..steps {
             let wider = self.dilate(rows.last().expect("one mask at least"));
@@ -296,18 +311,48 @@ mod tests {
         Frustum::from_view_proj(&(proj * view))
     }
 
-    #[test]
-    fn the_view_needs_the_same_bits_as_the_whole_product() {
+    /// The operators and culling of a flat basis on every point of a plane's hierarchy, with
+    /// coefficients `alpha` of a smooth function and their whole sharpened product.
+    struct Plane {
+        fb: FlatBasis,
+        op: FlattenOp,
+        sharpen: SharpenOp,
+        culling: FlatCulling,
+        alpha: Vec<f32>,
+        whole: Vec<f32>,
+    }
+
+    fn plane() -> Plane {
         let ib = plane_basis(6, 3);
         let fb = all(&ib);
         let op = FlattenOp::build(&ib, &fb, None).unwrap();
         let sharpen = SharpenOp::build(&fb).unwrap();
         let culling = FlatCulling::build(&fb, &op, Some(&sharpen)).unwrap();
-        assert!(culling.blocks() > 12, "{}", culling.blocks());
         let alpha = coefficients(&ib, LINK_DIM);
         let mut whole = vec![0.0; fb.len() * LINK_DIM];
         op.apply(&alpha, LINK_DIM, &mut whole, &mut FlattenScratch::default());
         sharpen.apply(&mut whole, LINK_DIM, &mut SharpenScratch::default());
+        Plane {
+            fb,
+            op,
+            sharpen,
+            culling,
+            alpha,
+            whole,
+        }
+    }
+
+    #[test]
+    fn the_view_needs_the_same_bits_as_the_whole_product() {
+        let Plane {
+            fb,
+            op,
+            sharpen,
+            culling,
+            alpha,
+            whole,
+        } = plane();
+        assert!(culling.blocks() > 12, "{}", culling.blocks());
         let b = &fb.ib.basis;
         let mut inside = 0;
         for (x, y, h) in [
@@ -376,15 +421,14 @@ mod tests {
     /// bit for bit; a third view, covered by the two, adds nothing.
     #[test]
     fn a_second_view_adds_only_its_own_rows_with_the_same_bits() {
-        let ib = plane_basis(6, 3);
-        let fb = all(&ib);
-        let op = FlattenOp::build(&ib, &fb, None).unwrap();
-        let sharpen = SharpenOp::build(&fb).unwrap();
-        let culling = FlatCulling::build(&fb, &op, Some(&sharpen)).unwrap();
-        let alpha = coefficients(&ib, LINK_DIM);
-        let mut whole = vec![0.0; fb.len() * LINK_DIM];
-        op.apply(&alpha, LINK_DIM, &mut whole, &mut FlattenScratch::default());
-        sharpen.apply(&mut whole, LINK_DIM, &mut SharpenScratch::default());
+        let Plane {
+            fb,
+            op,
+            sharpen,
+            culling,
+            alpha,
+            whole,
+        } = plane();
         let steps = sharpen.steps();
         let first = culling.masks(&looking_down(0.3, 0.3, 0.1, 0.8), steps);
         let second = culling.masks(&looking_down(0.45, 0.35, 0.1, 0.8), steps);
@@ -392,17 +436,17 @@ mod tests {
         let (mut scratch, mut fs) = (SharpenScratch::default(), FlattenScratch::default());
         op.apply_masked(&alpha, LINK_DIM, &mut flat, &mut fs, &first.flatten);
         sharpen.apply_masked(&mut flat, LINK_DIM, &mut scratch, &first.sharpen);
-        let added = second.flatten.minus(&first.flatten);
+        let added = second.minus(&first);
         // The views overlap: some rows are new, not all.
-        assert!(added.count() > 0 && added.count() < second.flatten.count());
-        op.apply_masked(&alpha, LINK_DIM, scratch.original_mut(), &mut fs, &added);
-        let added_steps: Vec<RowMask> = second
-            .sharpen
-            .iter()
-            .zip(&first.sharpen)
-            .map(|(n, d)| n.minus(d))
-            .collect();
-        sharpen.extend_masked(&mut flat, LINK_DIM, &mut scratch, &added_steps);
+        assert!(added.flatten.count() > 0 && added.flatten.count() < second.flatten.count());
+        op.apply_masked(
+            &alpha,
+            LINK_DIM,
+            scratch.original_mut(),
+            &mut fs,
+            &added.flatten,
+        );
+        sharpen.extend_masked(&mut flat, LINK_DIM, &mut scratch, &added.sharpen);
         let both = first.union(&second);
         // Dilation distributes over unions: the points the second view adds, dilated alone and
         // joined to the first view's masks, give the masks of both views.
@@ -435,11 +479,7 @@ mod tests {
     /// and every row a held row reads is in the result, and nothing else.
     #[test]
     fn both_dilations_give_the_same_rows() {
-        let ib = plane_basis(6, 3);
-        let fb = all(&ib);
-        let op = FlattenOp::build(&ib, &fb, None).unwrap();
-        let sharpen = SharpenOp::build(&fb).unwrap();
-        let culling = FlatCulling::build(&fb, &op, Some(&sharpen)).unwrap();
+        let Plane { fb, culling, .. } = plane();
         let n = fb.len();
         let mut state = 0x9e37_79b9_7f4a_7c15u64;
         for density in [0.01, 0.1, 0.45, 0.55, 0.9, 0.99] {

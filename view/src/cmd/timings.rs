@@ -72,10 +72,6 @@ fn camera_turn(v: &mut Viewing<'_>, light: &mlt_view::Light, steps: u32) -> serd
         }
     }
     let reflattened = ms.len();
-    // The timings' own view again, for whatever runs next.
-    let camera = v.camera;
-    v.relighter
-        .set_view(Some(&camera.frustum_for_bounds(lo, hi)));
     serde_json::json!({
         "degrees_per_step": TURN_DEG,
         "steps": steps.max(1),

@@ -255,56 +255,65 @@ impl FlattenOp {
         table: &mut Vec<f32>,
         mask: Option<&RowMask>,
     ) {
-        let scale = 1.0 / QUANTUM as f32;
+        let (alpha_d, _) = alpha.as_chunks::<D>();
         for (q, rows) in out.chunks_mut(BLOCK_ROWS).enumerate() {
             let b = first + q;
             if mask.is_some_and(|m| !m.block(b)) {
                 continue;
             }
-            // Few rows wanted: their columns read where they are, without the table (the same
-            // values, summed in the same order: the same bits).
-            let direct = mask.is_some_and(|m| self.few_rows(m, b));
-            if !direct {
-                self.gather_table(alpha, D, b, table);
-            }
-            let (table, _) = table.as_chunks::<D>();
-            let (alpha_d, _) = alpha.as_chunks::<D>();
             let cols = self.block_cols(b);
-            let add = |acc: &mut [f32; D], e: u32| {
-                let v = (e >> 16) as f32;
-                let l = (e & 0xffff) as usize;
-                let c = if direct {
-                    &alpha_d[cols[l] as usize]
+            if mask.is_some_and(|m| self.few_rows(m, b)) {
+                // Few rows wanted: their columns read where they are, without the table (the
+                // same values, summed in the same order: the same bits).
+                self.block_rows::<D, FMA>(b, rows, mask, |l| &alpha_d[cols[l] as usize]);
+            } else {
+                self.gather_table(alpha, D, b, table);
+                let (table, _) = table.as_chunks::<D>();
+                self.block_rows::<D, FMA>(b, rows, mask, |l| &table[l]);
+            }
+        }
+    }
+
+    /// The rows of block `b` that `mask` holds (all without one) into `rows`, `col(l)` the
+    /// coefficients of the block's local column `l`.
+    #[inline(always)]
+    fn block_rows<'c, const D: usize, const FMA: bool>(
+        &self,
+        b: usize,
+        rows: &mut [[f32; D]],
+        mask: Option<&RowMask>,
+        col: impl Fn(usize) -> &'c [f32; D],
+    ) {
+        let scale = 1.0 / QUANTUM as f32;
+        let add = |acc: &mut [f32; D], e: u32| {
+            let v = (e >> 16) as f32;
+            let c = col((e & 0xffff) as usize);
+            for d in 0..D {
+                acc[d] = if FMA {
+                    v.mul_add(c[d], acc[d])
                 } else {
-                    &table[l]
+                    acc[d] + v * c[d]
                 };
-                for d in 0..D {
-                    acc[d] = if FMA {
-                        v.mul_add(c[d], acc[d])
-                    } else {
-                        acc[d] + v * c[d]
-                    };
-                }
-            };
-            for (r, o) in rows.iter_mut().enumerate() {
-                if mask.is_some_and(|m| !m.row(b * BLOCK_ROWS + r)) {
-                    continue;
-                }
-                // Four partial sums (entries 4i, 4i+1, ...), so that consecutive entries do
-                // not wait on each other's additions; combined in a fixed order.
-                let mut acc = [[0.0f32; D]; ACCUMULATORS];
-                let (quads, rest) = self.row(b * BLOCK_ROWS + r).as_chunks::<ACCUMULATORS>();
-                for quad in quads {
-                    for (a, &e) in acc.iter_mut().zip(quad) {
-                        add(a, e);
-                    }
-                }
-                for (a, &e) in acc.iter_mut().zip(rest) {
+            }
+        };
+        for (r, o) in rows.iter_mut().enumerate() {
+            if mask.is_some_and(|m| !m.row(b * BLOCK_ROWS + r)) {
+                continue;
+            }
+            // Four partial sums (entries 4i, 4i+1, ...), so that consecutive entries do not
+            // wait on each other's additions; combined in a fixed order.
+            let mut acc = [[0.0f32; D]; ACCUMULATORS];
+            let (quads, rest) = self.row(b * BLOCK_ROWS + r).as_chunks::<ACCUMULATORS>();
+            for quad in quads {
+                for (a, &e) in acc.iter_mut().zip(quad) {
                     add(a, e);
                 }
-                for d in 0..D {
-                    o[d] = ((acc[0][d] + acc[1][d]) + (acc[2][d] + acc[3][d])) * scale;
-                }
+            }
+            for (a, &e) in acc.iter_mut().zip(rest) {
+                add(a, e);
+            }
+            for d in 0..D {
+                o[d] = ((acc[0][d] + acc[1][d]) + (acc[2][d] + acc[3][d])) * scale;
             }
         }
     }

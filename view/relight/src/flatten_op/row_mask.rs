@@ -63,24 +63,22 @@ impl RowMask {
 
     /// The rows this set or `other` holds. Panics unless both have as many rows.
     pub fn union(&self, other: &RowMask) -> RowMask {
-        assert_eq!(self.rows.len(), other.rows.len(), "masks of one product");
-        RowMask::from_rows(
-            self.rows
-                .iter()
-                .zip(&other.rows)
-                .map(|(&a, &b)| a || b)
-                .collect(),
-        )
+        self.zip_with(other, |a, b| a || b)
     }
 
     /// The rows this set holds and `other` does not. Panics unless both have as many rows.
     pub fn minus(&self, other: &RowMask) -> RowMask {
+        self.zip_with(other, |a, b| a && !b)
+    }
+
+    /// The rows for which `f(in self, in other)` holds.
+    fn zip_with(&self, other: &RowMask, f: impl Fn(bool, bool) -> bool) -> RowMask {
         assert_eq!(self.rows.len(), other.rows.len(), "masks of one product");
         RowMask::from_rows(
             self.rows
                 .iter()
                 .zip(&other.rows)
-                .map(|(&a, &b)| a && !b)
+                .map(|(&a, &b)| f(a, b))
                 .collect(),
         )
     }

@@ -171,12 +171,18 @@ impl SharpenOp {
         scratch: &mut SharpenScratch,
         masks: &[RowMask],
     ) {
+        self.check_masks(masks);
+        self.apply_inner(flat, dim, scratch, Some(masks), false);
+    }
+
+    /// Panics unless `masks` is one mask per step, each of one flag per flat point, and `W`'s
+    /// storage order is the flat point order.
+    fn check_masks(&self, masks: &[RowMask]) {
         assert_eq!(masks.len(), self.steps, "one mask per step");
         assert!(masks
             .iter()
             .all(|m| m.rows().len() == self.smoothing.points()));
         assert!(self.smoothing.in_point_order());
-        self.apply_inner(flat, dim, scratch, Some(masks), false);
     }
 
     /// Adds rows to the result of the last [`SharpenOp::apply_masked`] (or of the last
@@ -195,11 +201,7 @@ impl SharpenOp {
         scratch: &mut SharpenScratch,
         added: &[RowMask],
     ) {
-        assert_eq!(added.len(), self.steps, "one mask per step");
-        assert!(added
-            .iter()
-            .all(|m| m.rows().len() == self.smoothing.points()));
-        assert!(self.smoothing.in_point_order());
+        self.check_masks(added);
         assert!(
             scratch.steps.len() == self.steps
                 && scratch.steps.iter().all(|c| c.len() == flat.len()),
