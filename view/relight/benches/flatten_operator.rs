@@ -225,6 +225,19 @@ fn receiver_links(bencher: divan::Bencher) {
     bencher.bench_local(|| s.links.apply(divan::black_box(&s.smooth), 0.0, &mut i));
 }
 
+/// The level-0 rows of `S e` alone (the nearly dense coarsest receivers, summed eight rows at
+/// a time): what they cost of the whole product.
+#[divan::bench]
+fn receiver_links_level0(bencher: divan::Bencher) {
+    let s = setup();
+    let m = s.baked.ib.basis.level_range(0).len();
+    let mut i = vec![0.0f32; m * LINK_DIM];
+    bencher.bench_local(|| {
+        s.links
+            .apply_first(divan::black_box(&s.smooth), 0.0, m, &mut i)
+    });
+}
+
 /// `S e` with the finer rows on `e + y` in the same pass (the window's lagged fine bounces
 /// on a file with traced level-0 rows: `y` reaches the receivers past level 0).
 #[divan::bench]
