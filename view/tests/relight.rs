@@ -12,7 +12,7 @@ use mlt_format::links::LINK_DIM;
 use mlt_format::pull_push::pull_push_levels;
 use mlt_format::BakedFile;
 use mlt_relight::flatten_op::{step_weight, SHARPEN_STEPS};
-use mlt_relight::FineEmission;
+use mlt_relight::{FineEmission, ReceiverLinks};
 use mlt_view::probe::{evaluate, Probe};
 use mlt_view::{CpuRelighter, Light, Relight};
 
@@ -230,7 +230,8 @@ fn bits(v: &[f32]) -> Vec<u32> {
 }
 
 /// The precomputed operators give what the reference stages give: `e` the same bits as
-/// `pull_push_levels` of the ray-cast samples, `i` the same bits as the stored links' `apply`,
+/// `pull_push_levels` of the ray-cast samples, `i` the same bits as the receiver-major links'
+/// `apply` (the stored links' product over sender weights rounded to half-float precision),
 /// `flat` close to `FlatBasis::flatten(i)` sharpened by the default steps with `W` the flat
 /// basis' own reconstruction at its points (the operators' 16-bit values and dropped values
 /// below 1e-3 cost about 1e-3, relative, per product); and the same bits for 1 and 2 threads.
@@ -303,9 +304,25 @@ fn precomputed_stages_match_the_reference_stages() {
     assert!(frame.e.iter().any(|&v| v != 0.0));
     let max_e = e.iter().fold(0.0f32, |m, v| m.max(v.abs()));
     let mut i = vec![0.0f32; ib.basis.len() * LINK_DIM];
-    let used = links.apply(&e, 1e-4 * max_e, &mut i);
+    let used = ReceiverLinks::build(links).apply(&e, 1e-4 * max_e, &mut i);
     assert_eq!(frame.senders_used, used);
     assert_eq!(bits(&frame.i), bits(&i));
+    // That is the stored links' product but for the sender weights' rounding to half-float
+    // precision (at most 2^-11 of each term).
+    let mut exact = vec![0.0f32; i.len()];
+    assert_eq!(links.apply(&e, 1e-4 * max_e, &mut exact), used);
+    let (num, den) = i
+        .iter()
+        .zip(&exact)
+        .fold((0.0f64, 0.0f64), |(n, d), (a, b)| {
+            (n + f64::from(a - b).powi(2), d + f64::from(*b).powi(2))
+        });
+    assert!(den > 0.0 && num > 0.0, "{num} {den}");
+    assert!(
+        (num / den).sqrt() <= 2f64.powi(-11),
+        "{}",
+        (num / den).sqrt()
+    );
 
     let unsharpened = fb.flatten(&ib, &i, LINK_DIM);
     let reference = sharpened(&fb, &unsharpened);
@@ -390,7 +407,7 @@ fn adaptive_shadow_rays_only_refine_the_penumbra() {
 /// ones only by the fine bounces of that change.
 #[test]
 fn the_bounce_feedback_step_is_its_operators_in_order_and_thread_independent() {
-    use mlt_relight::{BounceFeedbackOp, FineBounceOp, PullPushOp, ReceiverLinks};
+    use mlt_relight::{BounceFeedbackOp, FineBounceOp, PullPushOp};
     let (_d, file, ib, sender_levels, caster) = small_cornell("feedback", 64);
     let lb = file.links_bytes().unwrap().unwrap();
     let links = file.access_links(&lb).unwrap();
@@ -458,7 +475,7 @@ fn the_bounce_feedback_step_is_its_operators_in_order_and_thread_independent() {
 /// and nothing else (the level-0 emission through level-0 links differs).
 #[test]
 fn fine_bounces_from_every_sender_point_are_the_finer_rows_of_s_on_the_bounce_emission() {
-    use mlt_relight::{BounceFeedbackOp, FineBounceOp, PullPushOp, ReceiverLinks};
+    use mlt_relight::{BounceFeedbackOp, FineBounceOp, PullPushOp};
     let (_d, file, ib, sender_levels, caster) = small_cornell("senders", 64);
     let lb = file.links_bytes().unwrap().unwrap();
     let links = file.access_links(&lb).unwrap();
@@ -534,7 +551,7 @@ fn worst_lag(
 
 #[test]
 fn lagged_bounce_feedback_is_one_pass_with_last_frames_correction_and_tracks_the_exact_step() {
-    use mlt_relight::{BounceFeedbackOp, FineBounceOp, PullPushOp, ReceiverLinks};
+    use mlt_relight::{BounceFeedbackOp, FineBounceOp, PullPushOp};
     let (_d, file, ib, sender_levels, caster) = small_cornell("lagged", 64);
     let lb = file.links_bytes().unwrap().unwrap();
     let links = file.access_links(&lb).unwrap();
@@ -630,7 +647,7 @@ fn the_lag_pays_wherever_a_part_is_lagged() {
 /// reset gives the exact frame.
 #[test]
 fn lagged_fine_bounces_share_the_pass_of_s_e_and_iterate_to_the_fixed_point() {
-    use mlt_relight::{BounceFeedbackOp, PullPushOp, ReceiverLinks};
+    use mlt_relight::{BounceFeedbackOp, PullPushOp};
     let (_d, file, ib, sender_levels, caster) = small_cornell("lagged_fine", 64);
     let lb = file.links_bytes().unwrap().unwrap();
     let links = file.access_links(&lb).unwrap();

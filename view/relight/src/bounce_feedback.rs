@@ -347,7 +347,7 @@ mod tests {
         let mut i = v.clone();
         op.apply(&ReceiverLinks::build(links), &pp, None, 1, 0.0, &mut i);
         let mut full = vec![0.0f32; v.len()];
-        links.apply(&got, 0.0, &mut full);
+        ReceiverLinks::build(links).apply(&got, 0.0, &mut full);
         let n0 = b.level_range(0).len() * LINK_DIM;
         for k in 0..v.len() {
             let want = if k < n0 { v[k] + full[k] } else { v[k] };

@@ -15,8 +15,12 @@ use mlt_format::links::{ArchivedLinks, LINK_DIM};
 /// at a time (`row_sum_f16c`). The first rows, nearly dense (the coarsest receivers'), are held
 /// and summed eight rows at a time instead (`Groups`), with the same bits.
 ///
-/// [`apply`](Self::apply) gives the same bits as [`ArchivedLinks::apply`] into a zeroed `i`:
-/// each receiver sums the same products (`(e_s * scale_s) * value`) in ascending sender order.
+/// [`apply`](Self::apply) is [`ArchivedLinks::apply`] into a zeroed `i` with each sender's
+/// weights `e_s * scale_s` rounded to half-float precision (a relative change of at most
+/// 2^-11 per weight, the precision of the links themselves; [`Weights`], which says why): each
+/// receiver sums the products `w_s * value` over the rounded weights in ascending sender
+/// order, one product then one sum in `f32` per term, the bits of that sender-major product
+/// over the same weights.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ReceiverLinks {
     receivers: u32,
@@ -198,57 +202,136 @@ impl Groups {
 /// `0..m`, `m`, and the receivers below which rows are skipped (neither computed nor written).
 type SenderWeights<'a> = (&'a Weights, &'a Weights, usize, usize);
 
-/// A sender's weight per colour channel, `e_s * scale_s`: element `d` of a link is multiplied
-/// by channel `d / 3`. Twelve bytes a sender, so that the weights of a scene's senders mostly
-/// stay in the first-level cache (textured Sponza's 4,889 take 59 KB, against 176 KB repeated
-/// nine to a sender); the products gather one per link.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-#[repr(C)]
-struct Weight([f32; 3]);
+/// The weights of a product's senders, by stored sender slot: per colour channel `e_s *
+/// scale_s` (element `d` of a link is multiplied by channel `d / 3`), each rounded to
+/// half-float precision (11 significant bits: a relative change of at most 2^-11, the
+/// precision of the half-float links they multiply) and held as half floats: six bytes a
+/// sender, so that the weights of a scene's senders stay in the first-level cache (textured
+/// Sponza's 4,889 take 29 KB, against 176 KB as nine floats a sender), where each link's gather
+/// of them finds them. Products and sums are `f32`, as before; each row's sum over the weights
+/// divided by [`Weights::scale`] (a power of two that brings the largest into the half floats'
+/// range) is multiplied by it at the end, which is exact, so a row's bits are those of its
+/// sum over the rounded weights themselves, whatever the scale.
+#[derive(Clone, Debug, PartialEq)]
+struct Weights {
+    /// The weights over `scale`, as `f32` (exactly the half floats): the portable sums' and
+    /// the groups'.
+    unscaled: Vec<[f32; 3]>,
+    /// The same as half-float bits, three a sender, then three zeros that no slot names, so
+    /// that the eight bytes from any sender's three are readable (the vector kernels load them
+    /// as one four-float vector and leave its fourth float unused).
+    half: Vec<u16>,
+    /// The power of two each sum over `unscaled` is multiplied by.
+    scale: f32,
+}
 
-impl Weight {
-    /// The weight of element `d` of a link.
+impl Weights {
+    /// The weights `w`, rounded (see [`Weights`]).
+    fn new(w: &[[f32; 3]]) -> Weights {
+        let scale = half_scale(w.as_flattened());
+        let n = 3 * w.len();
+        let mut half = vec![0u16; n + 3];
+        let mut unscaled = vec![[0.0f32; 3]; w.len()];
+        to_half(
+            w.as_flattened(),
+            1.0 / scale,
+            &mut half[..n],
+            unscaled.as_flattened_mut(),
+        );
+        Weights {
+            unscaled,
+            half,
+            scale,
+        }
+    }
+
+    /// Sender slot `s`'s weights (over the scale). Panics unless `s` names a sender.
     #[inline(always)]
-    fn of(&self, d: usize) -> f32 {
-        self.0[d / 3]
+    fn get(&self, s: usize) -> &[f32; 3] {
+        &self.unscaled[s]
+    }
+
+    /// Sender slot `s`'s weights (over the scale) as four floats (the fourth is the next
+    /// slot's, not to be used), with F16C. Panics unless `s` names a sender.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx,f16c")]
+    #[inline]
+    fn four(&self, s: usize) -> std::arch::x86_64::__m128 {
+        use std::arch::x86_64::*;
+        assert!(s < self.unscaled.len());
+        // SAFETY: `s` names a sender (checked) and three zeros follow the senders' half
+        // floats, so the 8 bytes from sender `s`'s first (6 of its own, 2 of the next) lie
+        // within `self.half`; the pointer is derived from the whole slice's (an unaligned
+        // load).
+        unsafe { _mm_cvtph_ps(_mm_loadl_epi64(self.half.as_ptr().add(3 * s).cast())) }
     }
 }
 
-/// The weights of a product's senders, by stored sender slot, then one more (zero) that no
-/// slot names, so that the sixteen bytes from any sender's weight are readable: the vector
-/// kernels load a weight as one four-float vector and leave its fourth float unused.
-#[derive(Clone, Debug, PartialEq)]
-struct Weights(Vec<Weight>);
-
-impl Weights {
-    fn new(weights: impl IntoIterator<Item = Weight>) -> Weights {
-        Weights(
-            weights
-                .into_iter()
-                .chain(std::iter::once(Weight::default()))
-                .collect(),
-        )
+/// The power of two by which weights `w` are divided to be held as half floats: the largest
+/// finite one in magnitude then lies in `[2^14, 2^15)`, below the half floats' largest
+/// (65,504), so that each keeps its 11 significant bits down to `2^-24` of it (smaller ones
+/// lose bits, as subnormal half floats, and below `2^-39` of it round to 0; `S e` skips
+/// senders below `1e-4` of the brightest). 1 where none is finite and nonzero; never below the
+/// smallest normal `f32`.
+fn half_scale(w: &[f32]) -> f32 {
+    let largest = w
+        .iter()
+        .filter(|x| x.is_finite())
+        .fold(0.0f32, |m, x| m.max(x.abs()));
+    if largest == 0.0 {
+        return 1.0;
     }
+    // `largest` lies in [2^k, 2^(k + 1)) (a subnormal counts as below 2^-126).
+    let k = ((largest.to_bits() >> 23) as i32 - 127).max(-126);
+    f32::from_bits((((k - 14).max(-126) + 127) as u32) << 23)
+}
 
-    /// Sender slot `s`'s weight. Panics unless `s` names a sender.
-    #[inline(always)]
-    fn get(&self, s: usize) -> &Weight {
-        &self.0[..self.0.len() - 1][s]
-    }
-
-    /// Sender slot `s`'s weight as four floats (the fourth is the next slot's, not to be
-    /// used), with AVX. Panics unless `s` names a sender.
+/// `half[k]` = `src[k] * inv` rounded to a half float (to nearest, ties to even), and
+/// `widened[k]` its value as `f32` (exact). `inv` is a power of two, so `src[k] * inv` is the
+/// exact quotient by its inverse. With F16C eight at a time (the same rounding).
+fn to_half(src: &[f32], inv: f32, half: &mut [u16], widened: &mut [f32]) {
     #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx")]
-    #[inline]
-    fn four(&self, s: usize) -> std::arch::x86_64::__m128 {
-        assert!(s + 1 < self.0.len());
-        // SAFETY: `s` names a sender (checked), and the sentinel follows the senders, so the
-        // 16 bytes from the start of weight `s` (12 of its own, 4 of the next) lie within
-        // `self.0`'s elements; the pointer is derived from the whole slice's (an unaligned
-        // load).
-        unsafe { std::arch::x86_64::_mm_loadu_ps(self.0.as_ptr().cast::<f32>().add(3 * s)) }
+    if has_f16c_lanes() {
+        // SAFETY: this CPU has AVX2 and F16C (checked), all `to_half_f16c` needs.
+        unsafe { to_half_f16c(src, inv, half, widened) };
+        return;
     }
+    for ((&x, h), y) in src.iter().zip(half).zip(widened) {
+        let v = f16::from_f32(x * inv);
+        *h = v.to_bits();
+        *y = v.to_f32();
+    }
+}
+
+/// [`to_half`] with F16C.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,f16c")]
+fn to_half_f16c(src: &[f32], inv: f32, half: &mut [u16], widened: &mut [f32]) {
+    use std::arch::x86_64::*;
+    let (s8, s_rest) = src.as_chunks::<8>();
+    let (h8, h_rest) = half.as_chunks_mut::<8>();
+    let (w8, w_rest) = widened.as_chunks_mut::<8>();
+    for ((s, h), w) in s8.iter().zip(h8).zip(w8) {
+        // SAFETY: `s` and `w` hold 8 `f32` (32 bytes), `h` 8 `u16` (16 bytes): unaligned
+        // loads and stores within them.
+        unsafe {
+            let x = _mm256_mul_ps(_mm256_loadu_ps(s.as_ptr()), _mm256_set1_ps(inv));
+            let bits = _mm256_cvtps_ph::<_MM_FROUND_TO_NEAREST_INT>(x);
+            _mm_storeu_si128(h.as_mut_ptr().cast(), bits);
+            _mm256_storeu_ps(w.as_mut_ptr(), _mm256_cvtph_ps(bits));
+        }
+    }
+    for ((&x, h), y) in s_rest.iter().zip(h_rest).zip(w_rest) {
+        let v = f16::from_f32(x * inv);
+        *h = v.to_bits();
+        *y = v.to_f32();
+    }
+}
+
+/// `x` rounded as [`Weights`] rounds a weight of a product whose scale is `scale`.
+#[cfg(test)]
+fn rounded(x: f32, scale: f32) -> f32 {
+    f16::from_f32(x / scale).to_f32() * scale
 }
 
 /// Most receivers per parallel task of the products ([`task_starts`]).
@@ -404,8 +487,9 @@ impl ReceiverLinks {
     }
 
     /// `i = S e`: as [`ArchivedLinks::apply`] into a zeroed `i` (same skipping of senders whose
-    /// largest channel is at most `threshold`, same result bits), but `i` is overwritten,
-    /// receivers without links included. Returns the number of senders used.
+    /// largest channel is at most `threshold`) over the rounded sender weights (see
+    /// [`ReceiverLinks`]), but `i` is overwritten, receivers without links included. Returns
+    /// the number of senders used.
     ///
     /// Panics unless `e.len() >= 3 * senders` and `i.len() == 9 * receivers`.
     pub fn apply(&self, e: &[f32], threshold: f32, i: &mut [f32]) -> usize {
@@ -445,7 +529,7 @@ impl ReceiverLinks {
 
     /// `i += S e` over the receivers with links (the others are left as they are), each
     /// receiver's sum formed first, in ascending sender order, then added: the same bits as
-    /// [`ArchivedLinks::apply`] into a zeroed vector, added to `i`. `e` needs entries only
+    /// [`ReceiverLinks::apply`] into a zeroed vector, added to `i`. `e` needs entries only
     /// for the senders held. Returns the number of senders used.
     pub fn apply_add(&self, e: &[f32], threshold: f32, i: &mut [f32]) -> usize {
         self.apply_impl::<true>(e, None, 0, threshold, self.receivers as usize, i)
@@ -542,25 +626,26 @@ impl ReceiverLinks {
         used
     }
 
-    /// Each stored sender's scaled light per channel ([`Weight`]), which multiplies the three
-    /// elements of a link's channel (the same products as `ArchivedLinks::apply`); zero
+    /// Each stored sender's scaled light per channel, `e_s * scale_s` (which multiplies the
+    /// three elements of a link's channel, as in `ArchivedLinks::apply`), rounded ([`Weights`]); zero
     /// for senders at most `threshold` in every channel, the others counted in `used`.
     fn sender_weights(&self, e: &[f32], threshold: f32, used: &mut usize) -> Weights {
-        Weights::new(
-            self.sender_ids
-                .iter()
-                .zip(&self.scales)
-                .map(|(&s, &scale)| {
-                    let s = s as usize;
-                    let es = [e[3 * s], e[3 * s + 1], e[3 * s + 2]];
-                    if es.iter().all(|x| x.abs() <= threshold) {
-                        Weight::default()
-                    } else {
-                        *used += 1;
-                        Weight([es[0] * scale, es[1] * scale, es[2] * scale])
-                    }
-                }),
-        )
+        let w: Vec<[f32; 3]> = self
+            .sender_ids
+            .iter()
+            .zip(&self.scales)
+            .map(|(&s, &scale)| {
+                let s = s as usize;
+                let es = [e[3 * s], e[3 * s + 1], e[3 * s + 2]];
+                if es.iter().all(|x| x.abs() <= threshold) {
+                    [0.0; 3]
+                } else {
+                    *used += 1;
+                    es.map(|x| x * scale)
+                }
+            })
+            .collect();
+        Weights::new(&w)
     }
 
     /// [`ReceiverLinks::chunk`] compiled with AVX2 and F16C ([`row_sum_f16c`]: no fused
@@ -596,14 +681,15 @@ impl ReceiverLinks {
         if !ADD {
             out.fill(0.0);
         }
-        let write = |out: &mut [f32], r: usize, acc: &[f32; LINK_DIM]| {
+        // A row's sum over the weights `w` (over their scale) to its place, times the scale.
+        let write = |out: &mut [f32], r: usize, acc: &[f32; LINK_DIM], w: &Weights| {
             let o = &mut out[r * LINK_DIM..(r + 1) * LINK_DIM];
-            if ADD {
-                for d in 0..LINK_DIM {
-                    o[d] += acc[d];
+            for d in 0..LINK_DIM {
+                if ADD {
+                    o[d] += acc[d] * w.scale;
+                } else {
+                    o[d] = acc[d] * w.scale;
                 }
-            } else {
-                o.copy_from_slice(acc);
             }
         };
         let qs = self.task_rows(c, rows);
@@ -621,7 +707,7 @@ impl ReceiverLinks {
                 let sums = self.groups.sums::<F16C>(q / GROUP, w);
                 for (j, point) in points().enumerate() {
                     if takes(point) {
-                        write(out, point - first, &sums[j]);
+                        write(out, point - first, &sums[j], w);
                     }
                 }
             }
@@ -634,7 +720,7 @@ impl ReceiverLinks {
             }
             let w = if point < m { w_first } else { w_rest };
             let acc = self.row_sum::<F16C>(self.links_of(q), w);
-            write(out, point - first, &acc);
+            write(out, point - first, &acc, w);
         }
     }
 
@@ -677,7 +763,7 @@ fn row_sum<const F16C: bool, S: Slot>(
     for (&slot, v) in slots.iter().zip(values) {
         let (ws, v) = (w.get(slot.index()), decode(v));
         for d in 0..LINK_DIM {
-            acc[d] += ws.of(d) * v[d];
+            acc[d] += ws[d / 3] * v[d];
         }
     }
     acc
@@ -703,7 +789,7 @@ fn group_sums<const F16C: bool, S: Slot>(
         let ws = w.get(slot.index());
         for d in 0..LINK_DIM {
             for j in 0..GROUP {
-                acc[j][d] += ws.of(d) * f16::from_bits(v[d * GROUP + j]).to_f32();
+                acc[j][d] += ws[d / 3] * f16::from_bits(v[d * GROUP + j]).to_f32();
             }
         }
     }
@@ -728,7 +814,7 @@ fn group_sums_f16c<S: Slot>(
             // SAFETY: `v` holds 72 `u16`: the 16 bytes from element `8 d` (d < 9) are in
             // bounds (an unaligned load).
             let vd = unsafe { _mm_loadu_si128(v.as_ptr().add(d * GROUP).cast::<__m128i>()) };
-            let prod = _mm256_mul_ps(_mm256_set1_ps(ws.of(d)), _mm256_cvtph_ps(vd));
+            let prod = _mm256_mul_ps(_mm256_set1_ps(ws[d / 3]), _mm256_cvtph_ps(vd));
             *acc = _mm256_add_ps(*acc, prod);
         }
     }
@@ -896,8 +982,54 @@ mod tests {
         v.iter().map(|x| x.to_bits()).collect()
     }
 
+    /// `i += S e` sender-major, as [`ArchivedLinks::apply`] (each receiver's terms added in
+    /// ascending sender order, senders at most `threshold` in every channel skipped), over the
+    /// sender weights `e_s * scale_s` rounded as [`Weights`] rounds them; with `abs`, the sum
+    /// of the terms' magnitudes instead. Returns the number of senders used.
+    fn sender_major(
+        a: &ArchivedLinks,
+        e: &[f32],
+        threshold: f32,
+        abs: bool,
+        i: &mut [f32],
+    ) -> usize {
+        let slots = a.sender_ids.len();
+        let mut used = 0;
+        let w: Vec<[f32; 3]> = (0..slots)
+            .map(|slot| {
+                let s = a.sender_ids[slot].to_native() as usize;
+                let es = [e[3 * s], e[3 * s + 1], e[3 * s + 2]];
+                if es.iter().all(|x| x.abs() <= threshold) {
+                    [0.0; 3]
+                } else {
+                    used += 1;
+                    es.map(|x| x * a.scales[slot].to_native())
+                }
+            })
+            .collect();
+        let scale = half_scale(w.as_flattened());
+        for (slot, w) in w.iter().enumerate() {
+            let w = w.map(|x| rounded(x, scale));
+            for k in a.offsets[slot].to_native() as usize..a.offsets[slot + 1].to_native() as usize
+            {
+                let r = a.receiver_ids[k].to_native() as usize;
+                for d in 0..LINK_DIM {
+                    let v = f16::from_bits(a.values[k * LINK_DIM + d].to_native()).to_f32();
+                    let term = w[d / 3] * v;
+                    i[r * LINK_DIM + d] += if abs { term.abs() } else { term };
+                }
+            }
+        }
+        used
+    }
+
+    /// [`sender_major`] over the rounded weights, into a zeroed vector.
+    fn rounded_apply(a: &ArchivedLinks, e: &[f32], threshold: f32, i: &mut [f32]) -> usize {
+        sender_major(a, e, threshold, false, i)
+    }
+
     #[test]
-    fn receiver_major_gives_the_same_bits() {
+    fn receiver_major_gives_the_bits_of_the_sender_major_product_over_the_rounded_weights() {
         let bytes = sample_bytes();
         let a = validated(&bytes);
         let e = sample_emission();
@@ -912,11 +1044,79 @@ mod tests {
         {
             assert_eq!(rl.receiver_ids(), (0..12).collect::<Vec<u32>>().as_slice());
             let mut want = vec![0.0f32; 14 * 9];
-            assert_eq!(a.apply(e, threshold, &mut want), senders);
+            assert_eq!(rounded_apply(a, e, threshold, &mut want), senders);
             let mut got = vec![f32::NAN; 14 * 9];
             assert_eq!(rl.apply(e, threshold, &mut got), senders);
             assert_eq!(bits(&got), bits(&want));
             assert!(got[12 * 9..].iter().all(|&x| x == 0.0));
+            // Within the weights' rounding of the exact product: each term moves by at most
+            // 2^-11 of itself.
+            let mut exact = vec![0.0f32; 14 * 9];
+            assert_eq!(a.apply(e, threshold, &mut exact), senders);
+            let mut magnitude = vec![0.0f32; 14 * 9];
+            sender_major(a, e, threshold, true, &mut magnitude);
+            for k in 0..14 * 9 {
+                let bound = magnitude[k] * (2f32.powi(-11) + 1e-5) + 1e-30;
+                assert!(
+                    (got[k] - exact[k]).abs() <= bound,
+                    "{k}: {} {}",
+                    got[k],
+                    exact[k]
+                );
+            }
+            assert!(got != exact, "the weights are rounded");
+        }
+    }
+
+    #[test]
+    fn weights_are_rounded_to_eleven_bits_whatever_their_scale() {
+        // The largest finite weight lands in [2^14, 2^15) (infinities and NaNs aside).
+        for largest in [1e-30f32, 3.0e-5, 1.0, 1.5, 2.0, 65504.0, 1e20, 3e38] {
+            let s = half_scale(&[largest, -0.5 * largest, f32::INFINITY, f32::NAN]);
+            assert_eq!(s.to_bits() & 0x007f_ffff, 0, "a power of two: {s}");
+            let q = largest / s;
+            assert!((16384.0..32768.0).contains(&q), "{largest}: {q}");
+        }
+        assert_eq!(half_scale(&[0.0, -0.0]), 1.0);
+        assert_eq!(half_scale(&[]), 1.0);
+        // Each weight moves by at most 2^-11 of itself down to 2^-24 of the largest, and the
+        // same whatever the largest (the rounding does not depend on the scale).
+        let w: Vec<f32> = (0..2000)
+            .map(|k| (k as f32 * 0.77).sin() * 10f32.powf(-(k % 8) as f32))
+            .collect();
+        let (s1, s2) = (half_scale(&w), half_scale(&[w[0], 4.0]));
+        for &x in w.iter().filter(|x| x.abs() >= 4.0 * 2f32.powi(-24)) {
+            let r = rounded(x, s1);
+            assert!((r - x).abs() <= x.abs() * 2f32.powi(-11), "{x} -> {r}");
+            assert_eq!(r.to_bits(), rounded(x, s2).to_bits(), "{x}");
+        }
+        // `Weights` holds those, its half floats and their values agreeing, with three zeros
+        // after the last sender; the vector conversion rounds as the scalar one (ties among
+        // these: multiples of 2^-11 and odd multiples of 2^-12 near 1).
+        let mut w3: Vec<[f32; 3]> = w.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        w3.push([
+            1.0 + 2f32.powi(-11),
+            1.0 + 3.0 * 2f32.powi(-11),
+            -(1.0 + 2f32.powi(-11)),
+        ]);
+        let weights = Weights::new(&w3);
+        assert_eq!(weights.scale, half_scale(w3.as_flattened()));
+        assert_eq!(weights.half.len(), 3 * w3.len() + 3);
+        assert!(weights.half[3 * w3.len()..].iter().all(|&h| h == 0));
+        for (s, w) in w3.iter().enumerate() {
+            for (c, &x) in w.iter().enumerate() {
+                let h = weights.half[3 * s + c];
+                assert_eq!(f16::from_bits(h).to_f32(), weights.get(s)[c]);
+                assert_eq!(
+                    h,
+                    f16::from_f32(x / weights.scale).to_bits(),
+                    "sender {s} channel {c}"
+                );
+                assert_eq!(
+                    (weights.get(s)[c] * weights.scale).to_bits(),
+                    rounded(x, weights.scale).to_bits()
+                );
+            }
         }
     }
 
@@ -940,7 +1140,7 @@ mod tests {
         let e = sample_emission();
         for links in [&rl, &wide] {
             let mut want = vec![0.0f32; 14 * 9];
-            validated(&bytes).apply(&e, 0.0, &mut want);
+            rounded_apply(validated(&bytes), &e, 0.0, &mut want);
             let mut got = vec![f32::NAN; 14 * 9];
             links.apply(&e, 0.0, &mut got);
             assert_eq!(bits(&got), bits(&want));
@@ -960,10 +1160,12 @@ mod tests {
                 .filter(|&h| !f16::from_bits(h).is_nan())
                 .collect();
             let weights = |phase: f32| -> Weights {
-                Weights::new((0..7).map(|s| {
-                    let c = |k: usize| ((s * 3 + k) as f32 * 0.37 + phase).sin() * 3.0;
-                    Weight([c(0), c(1), c(2)])
-                }))
+                let w: Vec<[f32; 3]> = (0..7)
+                    .map(|s| {
+                        std::array::from_fn(|k| ((s * 3 + k) as f32 * 0.37 + phase).sin() * 3.0)
+                    })
+                    .collect();
+                Weights::new(&w)
             };
             let w = weights(0.0);
             // Overflowing sums may give NaNs, whose payloads depend on operand order.
@@ -996,10 +1198,10 @@ mod tests {
         let all: Vec<u16> = (0..=u16::MAX)
             .filter(|&h| f16::from_bits(h).is_finite())
             .collect();
-        let w = Weights::new((0..40).map(|s| {
-            let c = |k: usize| ((s * 3 + k) as f32 * 0.61).cos() * 2.5;
-            Weight([c(0), c(1), c(2)])
-        }));
+        let w: Vec<[f32; 3]> = (0..40)
+            .map(|s| std::array::from_fn(|k| ((s * 3 + k) as f32 * 0.61).cos() * 2.5))
+            .collect();
+        let w = Weights::new(&w);
         let present = |u: usize, j: usize| (u * 7 + j * 3) % 10 < 7;
         let slots: Vec<u16> = (0..40u16).collect();
         for chunk in all.chunks_exact(40 * GROUP * LINK_DIM) {
@@ -1097,7 +1299,7 @@ mod tests {
             .map(|k| 0.5 + (k as f32 * 0.37).cos())
             .collect();
         let mut want = vec![0.0f32; n as usize * 9];
-        a.apply(&e, 0.0, &mut want);
+        rounded_apply(a, &e, 0.0, &mut want);
         // Row by row, and with the dense heavy rows grouped (as built): three groups.
         let plain = ReceiverLinks::build_filled(a, |_, _| true, f64::INFINITY);
         for (rl, grouped, heavy_tasks) in [(plain, 0, 3), (ReceiverLinks::build(a), 24, 2)] {
@@ -1122,7 +1324,7 @@ mod tests {
             assert_eq!(rl.tasks(24), heavy_tasks);
             assert_eq!(rl.tasks(0), 0);
             assert_eq!(rl.tasks(rows), starts.len() - 1);
-            // ...and every product gives the stored links' bits, for any thread count.
+            // ...and every product gives the sender-major product's bits, for any thread count.
             for threads in [1, 2, 3] {
                 let pool = rayon::ThreadPoolBuilder::new()
                     .num_threads(threads)
@@ -1194,7 +1396,7 @@ mod tests {
             let mut dark = e.clone();
             dark[9..].fill(0.0);
             let mut product = vec![0.0f32; 14 * 9];
-            a.apply(&dark, 0.0, &mut product);
+            rounded_apply(a, &dark, 0.0, &mut product);
             let start: Vec<f32> = (0..14 * 9).map(|k| (k as f32 * 0.71).sin()).collect();
             let mut want = start.clone();
             for (k, w) in want.iter_mut().enumerate().skip(4 * 9) {
