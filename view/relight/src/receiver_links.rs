@@ -9,15 +9,17 @@ use mlt_format::links::{ArchivedLinks, LINK_DIM};
 /// `i = S e`, rearranged for the run time): each linked receiver gathers its senders' light,
 /// so receivers are independent and computed in parallel with the same bits for any thread
 /// count. The values stay half floats (20 bytes per link with a 16-bit sender slot, against 40
-/// decoded): the product reads each link once per frame and is bound by memory traffic, and a
-/// half float's conversion to `f32` is exact, so the products are those of decoded values. On
+/// decoded): the product reads each link once per frame, and a half float's conversion to
+/// `f32` is exact, so the products are those of decoded values. Each link also gathers its
+/// sender's weights, which are held as half floats too (`Weights`) so that they stay in the
+/// first-level cache: those gathers, not the links' memory traffic, bound the product. On
 /// CPUs with AVX2 and F16C a link's values are converted, multiplied and summed eight and four
 /// at a time (`row_sum_f16c`). The first rows, nearly dense (the coarsest receivers'), are held
 /// and summed eight rows at a time instead (`Groups`), with the same bits.
 ///
 /// [`apply`](Self::apply) is [`ArchivedLinks::apply`] into a zeroed `i` with each sender's
 /// weights `e_s * scale_s` rounded to half-float precision (a relative change of at most
-/// 2^-11 per weight, the precision of the links themselves; [`Weights`], which says why): each
+/// 2^-11 per weight, the precision of the links themselves; `Weights`, which says why): each
 /// receiver sums the products `w_s * value` over the rounded weights in ascending sender
 /// order, one product then one sum in `f32` per term, the bits of that sender-major product
 /// over the same weights.
