@@ -601,8 +601,6 @@ enum Coverage {
 }
 
 impl CpuRelighter<'_> {
-    /// The rows step 4 computes for the current view, and the view, or `None` for every row
-    /// (no view, culling off, or operators whose layout allows none).
     /// The sharpening steps step 4 runs (0: none).
     fn sharpen_steps(&self) -> usize {
         self.sharpen_op
@@ -611,6 +609,8 @@ impl CpuRelighter<'_> {
             .map_or(0, SharpenOp::steps)
     }
 
+    /// The rows step 4 computes for the current view, and the view, or `None` for every row
+    /// (no view, culling off, or operators whose layout allows none).
     fn view_masks(&mut self) -> Option<(Frustum, Arc<ViewMasks>)> {
         let steps = self.sharpen_steps();
         let (culling, view) = self.culling_for_view()?;

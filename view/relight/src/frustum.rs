@@ -40,21 +40,22 @@ impl Frustum {
 
     /// True unless the box lies entirely outside one plane.
     pub fn meets_box(&self, lo: Vec3, hi: Vec3) -> bool {
-        self.planes.iter().all(|p| {
-            let n = p.truncate();
-            // The box corner farthest along the plane's normal.
-            let v = Vec3::select(n.cmpge(Vec3::ZERO), hi, lo);
-            n.dot(v) + p.w >= 0.0
-        })
+        self.corners_inside(lo, hi, true)
     }
 
     /// Whether the axis-aligned box `lo..hi` lies wholly inside the frustum (on the inner side
     /// of every plane), so that everything in it meets it.
     pub fn contains_box(&self, lo: Vec3, hi: Vec3) -> bool {
+        self.corners_inside(lo, hi, false)
+    }
+
+    /// Whether, for every plane, the corner of the box `lo..hi` farthest along its normal
+    /// (`farthest`) or nearest lies on its inner side.
+    fn corners_inside(&self, lo: Vec3, hi: Vec3, farthest: bool) -> bool {
+        let (ahead, behind) = if farthest { (hi, lo) } else { (lo, hi) };
         self.planes.iter().all(|p| {
             let n = p.truncate();
-            // The box corner nearest along the plane's normal.
-            let v = Vec3::select(n.cmpge(Vec3::ZERO), lo, hi);
+            let v = Vec3::select(n.cmpge(Vec3::ZERO), ahead, behind);
             n.dot(v) + p.w >= 0.0
         })
     }

@@ -322,6 +322,18 @@ mod tests {
         whole: Vec<f32>,
     }
 
+    /// Flat point `j`'s coefficients in `flat` are those in `whole`, bit for bit.
+    fn assert_point_bits(flat: &[f32], whole: &[f32], j: usize) {
+        for d in 0..LINK_DIM {
+            let (got, want) = (flat[j * LINK_DIM + d], whole[j * LINK_DIM + d]);
+            assert_eq!(
+                got.to_bits(),
+                want.to_bits(),
+                "point {j}, {d}: {got} vs {want}"
+            );
+        }
+    }
+
     fn plane() -> Plane {
         let ib = plane_basis(6, 3);
         let fb = all(&ib);
@@ -402,14 +414,7 @@ mod tests {
                 }
                 seen += 1;
                 assert!(masks.visible[j], "point {j} meets the view");
-                for d in 0..LINK_DIM {
-                    let (got, want) = (flat[j * LINK_DIM + d], whole[j * LINK_DIM + d]);
-                    assert_eq!(
-                        got.to_bits(),
-                        want.to_bits(),
-                        "point {j}, {d}: {got} vs {want}"
-                    );
-                }
+                assert_point_bits(&flat, &whole, j);
             }
             assert!(seen > 0);
         }
@@ -450,19 +455,11 @@ mod tests {
         let both = first.union(&second);
         // Dilation distributes over unions: the points the second view adds, dilated alone and
         // joined to the first view's masks, give the masks of both views.
-        let adds: Vec<bool> = second
-            .visible
-            .iter()
-            .zip(&first.visible)
-            .map(|(&s, &f)| s && !f)
-            .collect();
+        let adds = added.visible.clone();
         assert!(adds.iter().any(|&a| a));
         assert_eq!(first.union(&culling.masks_for(adds, steps)), both);
         for j in (0..fb.len()).filter(|&j| both.visible[j]) {
-            for d in 0..LINK_DIM {
-                let (got, want) = (flat[j * LINK_DIM + d], whole[j * LINK_DIM + d]);
-                assert_eq!(got.to_bits(), want.to_bits(), "point {j}, {d}");
-            }
+            assert_point_bits(&flat, &whole, j);
         }
         // Within both views: nothing to add.
         let inside = culling.masks(&looking_down(0.4, 0.33, 0.05, 0.3), steps);
