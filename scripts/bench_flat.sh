@@ -3,8 +3,8 @@
 # FILE --width W --height H --json` with the flat weights' normal power of each --power (default:
 # this build's, then Eq. 8's 2), and one line per run: flat points, coverage (mean, maximum,
 # uncovered pixels), pixels darker than a quarter of the exact image and the flat image's
-# relative RMSE from the exact per-pixel evaluation of Eq. 6 (BENCHMARKS.md, "The flat weights'
-# normal factor"). CPU only; no GPU needed.
+# relative RMSE from the exact per-pixel evaluation of Eq. 6 (BENCHMARKS.md, "Flattening,
+# sharpening and view culling"). CPU only; no GPU needed.
 #
 #   scripts/bench_flat.sh [--bin DIR] [--power P]... FILE=WxH...
 #

@@ -2,7 +2,7 @@
 # Per-frame cost of relighting and splatting the flat basis on whatever adapter wgpu picks
 # (llvmpipe here, a GPU where one is present): for each FILE=WxH, `view render --frames N`
 # with flattening on the CPU and then as a GPU compute pass, and one line per run with the
-# CPU stages, the GPU passes and the splatted functions (BENCHMARKS.md, issue 13's figures).
+# CPU stages, the GPU passes and the splatted functions (BENCHMARKS.md, "GPU rendering").
 #
 #   scripts/bench_splat.sh [--bin DIR] [--frames N] --out DIR FILE=WxH...
 #

@@ -259,6 +259,7 @@ pub fn link_distance(a: &[f32; LINK_DIM], b: &[f32; LINK_DIM]) -> f32 {
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
+    use crate::refine::RefinePolicy;
     use mlt_format::Basis;
     use mlt_scenes::SphereCaster;
 
@@ -314,7 +315,7 @@ pub(crate) mod tests {
         assert!(s
             .touched
             .iter()
-            .all(|&j| !crate::refine::budget_sampled(s.hits(j))));
+            .all(|&j| !RefinePolicy::default().budget_sampled(s.hits(j))));
         s.clear();
         // Every ray hits the closed sphere and has weight on at least one sender.
         let rays = 256u32;
@@ -326,7 +327,9 @@ pub(crate) mod tests {
             hits.iter().all(|&h| (1..=rays as u16).contains(&h)),
             "{hits:?}"
         );
-        assert!(hits.iter().any(|&h| h >= crate::refine::MIN_BUDGET_HITS));
+        assert!(hits
+            .iter()
+            .any(|&h| h >= RefinePolicy::default().min_budget_hits));
         // Eq. 17's subtraction of the parents' links adds values, not samples: a sender it
         // alone touches has no hits (and stays a budget candidate).
         for &j in &touched {
@@ -337,7 +340,7 @@ pub(crate) mod tests {
         assert!((0..ib.basis.len() as u32).all(|j| s.hits(j) == 0));
         s.add(3, &[1.0; LINK_DIM], -0.5);
         assert_eq!((s.touched.as_slice(), s.hits(3)), (&[3u32][..], 0));
-        assert!(crate::refine::budget_sampled(0));
+        assert!(RefinePolicy::default().budget_sampled(0));
     }
 
     #[test]

@@ -15,7 +15,9 @@
 //!
 //! A new parameter is one field of [`BakeOptions`] (its doc comment is the flag's help, its
 //! name the flag `--name-with-dashes` and the table key `name_with_underscores`), one line of
-//! [`BakeOptions::or`], and its use in the resolution below.
+//! [`BakeOptions::or`], and its use in the resolution below. The help is one short sentence in
+//! a user's words (the longer story goes to docs/design.md, "Options explained"); a tuning or
+//! diagnostic parameter is `hide = true`, listed by `bake --help-advanced` only.
 
 use std::path::Path;
 
@@ -24,6 +26,7 @@ use serde::Deserialize;
 
 use crate::error::BakeError;
 use crate::placement::Coarse;
+use crate::refine::{RefinePolicy, RefineRule};
 use crate::transport::{BouncePolicy, DEFAULT_BOUNCE_TOLERANCE};
 
 /// The paper's values (section 2.3): `R_fine = R_coarse / 2^l`, the disk radius factors
@@ -102,31 +105,31 @@ impl Preset {
 #[derive(Clone, Debug, Default, PartialEq, clap::Args, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct BakeOptions {
-    /// Defaults for the parameters not given: `converged` (the default: --bounces auto) or
-    /// `paper` (Table 1: 4 bounces); explicit values override it, from any layer.
-    #[arg(long, value_enum)]
+    /// Defaults to start from: converged (bounce the light until it converges; the default) or
+    /// paper (the paper's Table 1).
+    #[arg(long, value_enum, value_name = "NAME", hide_possible_values = true)]
     pub preset: Option<Preset>,
-    /// Number of hierarchy levels (paper: 6).
-    #[arg(long)]
+    /// Levels of the hierarchy, coarse to fine (default 6, the paper's).
+    #[arg(long, value_name = "N")]
     pub receiver_levels: Option<u32>,
-    /// Choose R_coarse so that level 0 has about this many points (paper's Sponza: 339).
-    #[arg(long, conflicts_with = "coarse_radius")]
+    /// About this many points on the coarsest level (default 339, the paper's Sponza).
+    #[arg(long, value_name = "K", conflicts_with = "coarse_radius")]
     pub coarse_count: Option<u32>,
-    /// Level-0 Poisson-disk radius R_coarse in scene units (after the manifest's scale).
-    #[arg(long)]
+    /// The coarsest level's point spacing in scene units, instead of --coarse-count.
+    #[arg(long, value_name = "R", hide = true)]
     pub coarse_radius: Option<f32>,
-    /// Random seed; the same seed and inputs give a byte-identical file.
-    #[arg(long)]
+    /// Random seed: the same seed and inputs give a byte-identical file.
+    #[arg(long, value_name = "S")]
     pub seed: Option<u64>,
-    /// Link threshold epsilon (paper: 0.025).
-    #[arg(long)]
+    /// Link threshold (default 0.025): smaller keeps more links, for a more accurate image, a
+    /// bigger file and slower frames.
+    #[arg(long, value_name = "E")]
     pub epsilon: Option<f32>,
-    /// Truncation threshold of bounces 2 and later (default: epsilon, as the paper; a smaller
-    /// value keeps multi-bounce energy that epsilon would drop, see the bounce norms).
-    #[arg(long)]
+    /// Link threshold of bounces 2 and later (default: --epsilon).
+    #[arg(long, value_name = "E", hide = true)]
     pub bounce_epsilon: Option<f32>,
-    /// Sender levels, the coarsest of the receiver levels (paper: 3).
-    #[arg(long)]
+    /// Levels that send light: the coarsest N of the receiver levels (default 3, the paper's).
+    #[arg(long, value_name = "N", hide = true)]
     pub sender_levels: Option<u32>,
     /// Bounces of the Neumann series (paper: 4); with `auto_bounces`, the cap. On the
     /// command line it is `--bounces N` or `--bounces auto:N` ([`BakeOptions::bounce_flag`]).
@@ -138,50 +141,63 @@ pub struct BakeOptions {
     #[arg(skip)]
     #[serde(default)]
     pub auto_bounces: bool,
-    /// Bounces of the Neumann series S = T + T^2 + ...: a count (paper: 4), or `auto` (the
-    /// default) to choose it from the spectral-radius estimate so that the bounces left out
-    /// carry at most --bounce-tolerance of the indirect light (`auto:N` caps it at N, default
-    /// 1000).
+    /// Light bounces: a count, or auto (the default) to bounce until the light converges,
+    /// auto:N at most N times.
     #[arg(long = "bounces", value_name = "N|auto|auto:N", value_parser = parse_bounces)]
     #[serde(skip)]
     pub bounce_flag: Option<BounceChoice>,
-    /// Fraction of the indirect light the series may leave out (default 0.01): the target of
-    /// --bounces auto, and the threshold above which a fixed count is warned about.
-    #[arg(long)]
+    /// Share of the indirect light that --bounces auto may leave out (default 0.01).
+    #[arg(long, value_name = "F", hide = true)]
     pub bounce_tolerance: Option<f64>,
-    /// Rays per receiver gather (Eq. 16).
-    #[arg(long)]
+    /// Rays per receiver point when gathering its links (default 256).
+    #[arg(long, value_name = "N", hide = true)]
     pub gather_rays: Option<u32>,
-    /// Compute bounces 2 and later on every refined receiver, not only the coarsest (the
-    /// paper's choice; more accurate on curved geometry, slower).
-    #[arg(long)]
+    /// Compute bounces 2 and later on every receiver, not only the coarsest (slower).
+    #[arg(long, hide = true)]
     #[serde(default)]
     pub bounces_on_all_receivers: bool,
-    /// Trace the coarsest receivers' bounces 2 and later as N paths each, reflected off the
-    /// true geometry and ending in T [default: 1024; 0 with --preset paper, which chains them
-    /// through the coarsest senders as the paper does]. 0 with --bounces-on-all-receivers;
-    /// shards leave the paths to `bake merge --scene`.
-    #[arg(long, value_name = "N")]
+    /// Paths per coarsest receiver that trace its later bounces (default 1024; 0 chains them, as
+    /// the paper).
+    #[arg(long, value_name = "N", hide = true)]
     pub level0_paths: Option<u32>,
-    /// Place the basis only; compute no transport operator.
-    #[arg(long)]
+    /// Place the basis points only; compute no light transport.
+    #[arg(long, hide = true)]
     #[serde(default)]
     pub basis_only: bool,
-    /// Dart thrower's consecutive-miss limit (paper: 2000).
-    #[arg(long)]
+    /// Misses in a row after which a level's point placement stops (default 2000, the paper's).
+    #[arg(long, value_name = "N", hide = true)]
     pub max_misses: Option<u32>,
-    /// Compute shard I of N of the transport (I from 0) into a shard file for `bake merge`.
+    /// Bake share I of N (I from 0) of the light transport into a shard file for `bake merge`.
     #[arg(long, value_name = "I/N", value_parser = parse_shard)]
     #[serde(skip)]
     pub shard: Option<(u32, u32)>,
-    /// Store wall-clock timings in the file (the file then differs from run to run).
-    #[arg(long)]
+    /// Store wall-clock timings in the file (it then differs from run to run).
+    #[arg(long, hide = true)]
     #[serde(skip)]
     pub record_timings: bool,
-    /// zstd-compress the file's sections (smaller; readers decompress instead of mapping).
+    /// Compress the file with zstd: smaller, but read into memory instead of mapped.
     #[arg(long)]
     #[serde(skip)]
     pub compress: bool,
+    /// Diagnostic: turn refinement rules off, for ablations (rules: docs/design.md)
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        value_name = "RULE,...",
+        hide = true,
+        hide_possible_values = true
+    )]
+    #[serde(default)]
+    pub refine_off: Vec<RefineRule>,
+}
+
+/// The rules either layer turns off, sorted and once each (like flags, on when either sets them).
+fn refine_off_union(a: &[RefineRule], b: &[RefineRule]) -> Vec<RefineRule> {
+    let mut rules: Vec<RefineRule> = a.iter().chain(b).copied().collect();
+    rules.sort_unstable();
+    rules.dedup();
+    rules
 }
 
 /// A choice of bounce count: `N` (`auto: false, count: Some(N)`), `auto` or `auto:N`.
@@ -223,7 +239,13 @@ impl BakeOptions {
             shard: self.shard.or(lower.shard),
             record_timings: self.record_timings || lower.record_timings,
             compress: self.compress || lower.compress,
+            refine_off: refine_off_union(&self.refine_off, &lower.refine_off),
         }
+    }
+
+    /// The refinement policy these options ask for: the default with `refine_off`'s rules off.
+    pub fn refine_policy(&self) -> RefinePolicy {
+        RefinePolicy::without(&self.refine_off)
     }
 
     /// The bounce choice of this layer, if it makes one: the command line's `--bounces`, else

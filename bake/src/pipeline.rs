@@ -30,6 +30,25 @@ pub fn tool_version() -> String {
     format!("mlt-bake {}", env!("CARGO_PKG_VERSION"))
 }
 
+/// The tool recorded in a file made with `opts`: [`tool_version`], followed by the refinement
+/// rules turned off when a diagnostic bake turned any off, so that such a file says so.
+pub fn tool_description(opts: &BakeOptions) -> String {
+    if opts.refine_off.is_empty() || opts.basis_only {
+        tool_version()
+    } else {
+        format!(
+            "{} (refinement rules off: {})",
+            tool_version(),
+            refine_off_names(opts).join(",")
+        )
+    }
+}
+
+/// The names of the refinement rules `opts` turns off.
+fn refine_off_names(opts: &BakeOptions) -> Vec<&'static str> {
+    opts.refine_off.iter().map(|r| r.name()).collect()
+}
+
 /// What a bake produced.
 pub struct BakeOutput {
     pub contents: BakeContents,
@@ -103,6 +122,11 @@ fn key_of(
         "record_timings": opts.record_timings,
         "compress": opts.compress,
     });
+    let mut description = description;
+    if !opts.refine_off.is_empty() {
+        // Only when set, so that the default bakes' keys stay what they were.
+        description["refine_off"] = serde_json::json!(refine_off_names(opts));
+    }
     xxhash_rust::xxh3::xxh3_64(description.to_string().as_bytes())
 }
 
@@ -133,6 +157,12 @@ pub fn bake_scene(
     if !opts.basis_only {
         // Refuse bad transport parameters before spending time on the basis.
         check_params(&transport_params, params.levels)?;
+        if !opts.refine_off.is_empty() {
+            warnings.push(format!(
+                "refinement rules turned off (a diagnostic bake, not for use): {}",
+                refine_off_names(&opts).join(", ")
+            ));
+        }
     }
     let viewpoint = scene.viewpoint;
     if !viewpoint.is_finite() {
@@ -186,7 +216,7 @@ pub fn bake_scene(
         threads: rayon::current_num_threads() as u32,
     };
     let meta = Meta {
-        tool: tool_version(),
+        tool: tool_description(&opts),
         scene: scene_info(scene, caster.as_ref()),
         camera,
         light: light_info(scene),
@@ -271,7 +301,16 @@ fn transport_stage(
         let need = needed(&ib, &owner, index);
         // No traced level-0 bounces here: their paths end in the whole of T, so the merge
         // traces them (`shard::merge`).
-        let (t, _, _) = refine_t(&ib, caster, &transport_params, light, Some(&need), obs)?;
+        let refine = opts.refine_policy();
+        let (t, _, _) = refine_t(
+            &ib,
+            caster,
+            &transport_params,
+            &refine,
+            light,
+            Some(&need),
+            obs,
+        )?;
         shard = Some(shard_section(
             &ib,
             &t,
@@ -280,10 +319,19 @@ fn transport_stage(
             key,
             transport_params,
             policy,
+            &refine,
         ));
         file_key = mix64(key ^ mix64(((index as u64) << 32) | count as u64));
     } else if !opts.basis_only {
-        let out = compute_transport(&ib, caster, transport_params, policy, light, camera, obs)?;
+        let out = compute_transport(
+            &ib,
+            caster,
+            (transport_params, &opts.refine_policy()),
+            policy,
+            light,
+            camera,
+            obs,
+        )?;
         warnings = out.warnings;
         if out.levels_stored < ib.levels() {
             let placed = ib.levels();

@@ -105,6 +105,7 @@ pub fn needed(ib: &IndexedBasis, owner: &[u32], index: u32) -> Vec<bool> {
 }
 
 /// Packs the owned rows of a shard's T.
+#[allow(clippy::too_many_arguments)]
 pub fn shard_section(
     ib: &IndexedBasis,
     t: &ReceiverLinks,
@@ -113,6 +114,7 @@ pub fn shard_section(
     base_key: u64,
     params: mlt_format::meta::TransportParams,
     policy: BouncePolicy,
+    refine: &crate::refine::RefinePolicy,
 ) -> ShardSection {
     let levels = ib.levels();
     let gather_rays = params.gather_rays;
@@ -144,7 +146,7 @@ pub fn shard_section(
         let l = ib.basis.level_of(r as usize);
         s.receivers_refined[l] += 1;
         s.t_links_per_level[l] += (e - a) as u64;
-        s.rays += crate::refine::gather_rays_at(l, gather_rays) as u64;
+        s.rays += refine.gather_rays_at(l, gather_rays) as u64;
         s.unsupported_hits += t.unsupported[row];
         s.rows.push(r);
         s.row_gathered.extend_from_slice(&t.gathered[row]);

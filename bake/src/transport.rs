@@ -20,7 +20,7 @@ use crate::error::BakeError;
 use crate::neumann::{series, spectral_radius, BounceReceivers, Row, Rows, SeriesReport};
 use crate::observer::Observer;
 use crate::path_bounces::{level0_bounces, PathSettings};
-use crate::refine::{refine, ReceiverLinks, RefineSettings, RefineStats};
+use crate::refine::{refine, ReceiverLinks, RefinePolicy, RefineSettings, RefineStats};
 use crate::report::too_dark_or_bright;
 
 /// The result, with what the user should be told.
@@ -226,7 +226,7 @@ pub fn peak_rss_bytes() -> u64 {
 pub fn compute_transport(
     ib: &IndexedBasis,
     caster: &dyn RayCaster,
-    params: TransportParams,
+    (params, refine): (TransportParams, &RefinePolicy),
     policy: BouncePolicy,
     light: &LightDesc,
     camera: &CameraInfo,
@@ -234,7 +234,7 @@ pub fn compute_transport(
 ) -> Result<TransportOutput, BakeError> {
     check_params(&params, ib.levels() as u32)?;
     let model = Light::from_desc(light).map_err(|e| BakeError::InvalidParameter(e.to_string()))?;
-    let (mut t, rstats, refine_s) = refine_t(ib, caster, &params, light, None, obs)?;
+    let (mut t, rstats, refine_s) = refine_t(ib, caster, &params, refine, light, None, obs)?;
     trace_level0_bounces(ib, caster, &params, policy, &mut t, obs);
     let check = CheckScene {
         caster,
@@ -379,6 +379,7 @@ pub fn refine_t(
     ib: &IndexedBasis,
     caster: &dyn RayCaster,
     params: &TransportParams,
+    refine_policy: &RefinePolicy,
     light: &LightDesc,
     needed: Option<&[bool]>,
     obs: &dyn Observer,
@@ -394,6 +395,7 @@ pub fn refine_t(
         sender_levels: params.sender_levels as usize,
         gather_rays: params.gather_rays,
         seed: params.seed,
+        policy: *refine_policy,
     };
     let levels = ib.levels();
     let (t, rstats) = refine(

@@ -9,7 +9,7 @@
 
 use glam::Vec3;
 use mlt_bake::drop_estimate::{estimate, representative_emission};
-use mlt_bake::refine::ReceiverLinks;
+use mlt_bake::refine::{ReceiverLinks, RefinePolicy};
 use mlt_bake::transport::refine_t;
 use mlt_bake::{BakeOptions, Silent};
 use mlt_format::light::{LightDesc, LightKind};
@@ -72,13 +72,13 @@ fn mean_irradiance(ib: &IndexedBasis, caster: &dyn RayCaster, t: &ReceiverLinks,
 }
 
 /// Four and five levels, so that levels 2 and 3 keep the coarsest-sender budget away from
-/// contacts as in a default file (`refine::keeps_budget`), at two epsilons each. The
+/// contacts as in a default file (`RefinePolicy::keeps_budget`), at two epsilons each. The
 /// uniform estimate counts only the dropped links of receivers whose children were not
 /// refined: a refined receiver's dropped links reappear in its children's differences (Eq. 17).
 /// Counted at every level instead, it was 2.3-4.1 times the loss at four and five levels. At
 /// three levels, where the finest level 2 keeps the budget at contacts only, the leaves'
 /// sum is 0.48 times the loss at epsilon 0.1 and 0.74 times at 0.2: a known limit, stated in
-/// `docs/error_sources.md`. `MLT_LOSS_EPS` replaces the two epsilons by one.
+/// `docs/design.md`, "Accuracy". `MLT_LOSS_EPS` replaces the two epsilons by one.
 #[test]
 fn the_estimate_of_the_light_refinement_drops_is_within_a_factor_of_two() {
     let epsilons: Vec<f32> = match std::env::var("MLT_LOSS_EPS")
@@ -116,6 +116,7 @@ fn check(levels: u32, eps: f32) {
             &ib,
             caster.as_ref(),
             &params(epsilon, levels),
+            &RefinePolicy::default(),
             &light(),
             None,
             &Silent,

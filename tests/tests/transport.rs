@@ -277,15 +277,16 @@ fn transport_is_identical_with_one_and_two_threads_and_round_trips() {
         s.receivers_refined[0],
         a.contents.basis.basis.level_range(0).len() as u64
     );
-    // Level 0 gathers with more rays than the finer levels (`refine::gather_rays_at`).
+    // Level 0 gathers with more rays than the finer levels (`RefinePolicy::gather_rays_at`).
+    let policy = mlt_bake::refine::RefinePolicy::default();
     let rays: u64 = s
         .receivers_refined
         .iter()
         .enumerate()
-        .map(|(l, &n)| n * u64::from(mlt_bake::refine::gather_rays_at(l, 128)))
+        .map(|(l, &n)| n * u64::from(policy.gather_rays_at(l, 128)))
         .sum();
     assert_eq!(s.visibility_rays, rays);
-    assert!(mlt_bake::refine::gather_rays_at(0, 128) > mlt_bake::refine::gather_rays_at(1, 128));
+    assert!(policy.gather_rays_at(0, 128) > policy.gather_rays_at(1, 128));
     assert!(s.quantisation_error < 1e-3 * t.meta.params.epsilon.max(1.0));
 }
 
@@ -348,7 +349,7 @@ fn refinement_adapts_to_corners_and_contacts_not_flat_walls() {
 }
 
 /// Levels 2 and 3 keep their links to coarsest senders below epsilon by a budget
-/// (`refine::keeps_budget`), at contacts (where a wall's light changes toward the surface it
+/// (`RefinePolicy::keeps_budget`), at contacts (where a wall's light changes toward the surface it
 /// meets over many senders at once) and away from them (where the differences from the
 /// parents' view lean the same way over a whole surface). Level 4 keeps Fig. 5 alone, so a
 /// link to a coarsest sender below epsilon there can only belong to a receiver that no coarser
@@ -409,7 +410,7 @@ fn levels_two_and_three_keep_sub_epsilon_links_to_coarsest_senders_level_four_do
     let covered = |j: usize, level: usize| {
         (0..level).any(|m| ib.weight_sum(m, b.positions[j], b.normals[j]) > MIN_WEIGHT_SUM)
     };
-    let contact = mlt_bake::refine::CONTACT_FRACTION;
+    let contact = mlt_bake::refine::RefinePolicy::default().contact_fraction;
     for level in [2, 3] {
         let budget: Vec<usize> = b
             .level_range(level)
@@ -440,7 +441,7 @@ fn levels_two_and_three_keep_sub_epsilon_links_to_coarsest_senders_level_four_do
 }
 
 /// Levels 2 and 3 keep their largest links to finer senders below epsilon by a budget
-/// (`refine::keeps_finer_budget`); Fig. 5 alone keeps a finer link only above epsilon, so at
+/// (`RefinePolicy::keeps_finer_budget`); Fig. 5 alone keeps a finer link only above epsilon, so at
 /// level 1 and at levels 4 and finer none below it is stored (level 0 keeps every link).
 /// Epsilon is small here so that the budget (20 epsilon) is below what a receiver's finer links
 /// sum to in this small box (at the default 0.025 it drops them all, as it should).
@@ -477,18 +478,19 @@ fn levels_two_and_three_keep_finer_sender_links_by_a_budget() {
         }
     }
     eprintln!("sub-epsilon links to finer senders per receiver level: {small:?}");
+    let policy = mlt_bake::refine::RefinePolicy::default();
     for (l, &count) in small.iter().enumerate().skip(1) {
         assert_eq!(
             count > 0,
-            mlt_bake::refine::keeps_finer_budget(l),
+            policy.keeps_finer_budget(l),
             "level {l}: {count} sub-epsilon links to finer senders"
         );
     }
     assert!(small[2] >= 100 && small[3] >= 100, "{small:?}");
     // Those levels gather with more rays, since their budget links rest on few hits.
     assert!(
-        mlt_bake::refine::gather_rays_at(2, 64) > mlt_bake::refine::gather_rays_at(4, 64)
-            && mlt_bake::refine::gather_rays_at(3, 64) > mlt_bake::refine::gather_rays_at(4, 64)
+        policy.gather_rays_at(2, 64) > policy.gather_rays_at(4, 64)
+            && policy.gather_rays_at(3, 64) > policy.gather_rays_at(4, 64)
     );
 }
 
@@ -615,9 +617,16 @@ fn finer_points_without_coarser_support_are_computed_and_keep_their_links() {
         bounces_on_all_receivers: false,
         seed: 1,
     };
-    let (t, _, _) =
-        mlt_bake::transport::refine_t(&ib, caster.as_ref(), &params, &scene.light, None, &Silent)
-            .unwrap();
+    let (t, _, _) = mlt_bake::transport::refine_t(
+        &ib,
+        caster.as_ref(),
+        &params,
+        &mlt_bake::refine::RefinePolicy::default(),
+        &scene.light,
+        None,
+        &Silent,
+    )
+    .unwrap();
     let mut orphans = 0;
     for l in 1..b.levels() {
         for i in b.level_range(l) {

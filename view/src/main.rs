@@ -20,6 +20,8 @@ use std::ffi::OsString;
 use anyhow::Result;
 use clap::{CommandFactory, Parser, Subcommand};
 
+use cmd::help;
+
 use cmd::compare::CompareArgs;
 use cmd::flat::FlatArgs;
 use cmd::open::OpenArgs;
@@ -55,8 +57,7 @@ enum Command {
     Reference(ReferenceArgs),
     /// Compare a rendering (or probes) against the reference.
     Compare(CompareArgs),
-    /// Measure the flat basis in one view: coverage per pixel, error against the exact
-    /// evaluation.
+    /// Measure the flat basis in one view: coverage per pixel, error against the exact image.
     Flat(FlatArgs),
 }
 
@@ -102,7 +103,10 @@ fn main() -> Result<()> {
         // read the environment while it changes.
         std::env::set_var("NODEVICE_SELECT", "1");
     }
-    let cli = Cli::parse_from(with_default_command(std::env::args_os().collect()));
+    let cli: Cli = help::parse(
+        help::command(Cli::command()),
+        with_default_command(std::env::args_os().collect()),
+    );
     match &cli.command {
         Command::Open(a) => cmd::open::run(a),
         Command::Render(a) => cmd::render::run(a),
@@ -165,6 +169,6 @@ mod tests {
 
     #[test]
     fn the_command_line_is_consistent() {
-        Cli::command().debug_assert();
+        help::command(Cli::command()).debug_assert();
     }
 }

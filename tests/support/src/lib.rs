@@ -1,5 +1,6 @@
-//! What the tests of every crate share: a temporary directory that removes itself, and one
-//! policy for the third-party scenes that live outside the repository.
+//! What the tests of every crate share: a temporary directory that removes itself, one
+//! policy for the third-party scenes that live outside the repository, and the commands'
+//! printed help read back ([`help`]).
 //!
 //! The scenes (Cornell box, Sponza, Sibenik, conference room: OBJ files with their materials
 //! and textures) are not committed; they sit in a `shared/scenes` folder beside the checkout
@@ -10,6 +11,8 @@
 //! The repository's manifests of these scenes (`scenes/*.toml`) name their meshes as
 //! `../../shared/scenes/...`, relative to the manifest; [`shared_manifest`] gives a copy that
 //! points at the shared folder wherever it is (a worktree elsewhere, `MLT_SHARED`).
+
+pub mod help;
 
 use std::ops::Deref;
 use std::path::{Path, PathBuf};

@@ -20,132 +20,101 @@ pub struct BakedArgs {
     pub relight: RelightArgs,
 }
 
+/// The heading of [`SceneArgs`] in the help.
+const SCENE: &str = "Scene, camera and light";
+
 /// The scene, camera and light, each defaulting to the file's (or the scene's).
 #[derive(Args, Clone, Debug, Default)]
 pub struct SceneArgs {
-    /// The scene to ray-cast for visibility and to rasterise (default: the source recorded
-    /// in the file).
-    #[arg(long)]
+    /// The scene to draw and ray-cast (default: the one recorded in the file).
+    #[arg(long, help_heading = SCENE)]
     pub scene: Option<String>,
     /// Camera position (default: the file's camera).
-    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    #[arg(long, help_heading = SCENE, value_name = "X,Y,Z", value_parser = parse_vec3,
+          allow_hyphen_values = true)]
     pub camera_pos: Option<Vec3>,
-    /// Camera target.
-    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    /// The point the camera looks at.
+    #[arg(long, help_heading = SCENE, value_name = "X,Y,Z", value_parser = parse_vec3,
+          allow_hyphen_values = true)]
     pub camera_target: Option<Vec3>,
-    /// Camera up vector.
-    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    /// The camera's up direction.
+    #[arg(long, help_heading = SCENE, value_name = "X,Y,Z", value_parser = parse_vec3,
+          allow_hyphen_values = true)]
     pub camera_up: Option<Vec3>,
-    /// Vertical field of view, degrees.
-    #[arg(long)]
+    /// Vertical field of view in degrees.
+    #[arg(long, help_heading = SCENE, value_name = "DEG")]
     pub fovy: Option<f32>,
     /// Image width in pixels (default: the camera's); the field of view is kept.
-    #[arg(long)]
+    #[arg(long, help_heading = SCENE, value_name = "PX")]
     pub width: Option<u32>,
     /// Image height in pixels (default: the camera's).
-    #[arg(long)]
+    #[arg(long, help_heading = SCENE, value_name = "PX")]
     pub height: Option<u32>,
     /// Light position (default: the file's light).
-    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    #[arg(long, help_heading = SCENE, value_name = "X,Y,Z", value_parser = parse_vec3,
+          allow_hyphen_values = true)]
     pub light_pos: Option<Vec3>,
-    /// Light RGB intensity in W/sr.
-    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    /// Light intensity per colour channel, in W/sr.
+    #[arg(long, help_heading = SCENE, value_name = "R,G,B", value_parser = parse_vec3,
+          allow_hyphen_values = true)]
     pub light_intensity: Option<Vec3>,
-    /// Spot direction (with --cone-deg): makes the light a spot.
-    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true, requires = "cone_deg")]
+    /// Make the light a spot pointing this way (with --cone-deg).
+    #[arg(long, help_heading = SCENE, value_name = "X,Y,Z", value_parser = parse_vec3,
+          allow_hyphen_values = true, requires = "cone_deg")]
     pub light_dir: Option<Vec3>,
-    /// Spot full cone angle, degrees.
-    #[arg(long, requires = "light_dir")]
+    /// The spot's full cone angle in degrees.
+    #[arg(long, help_heading = SCENE, value_name = "DEG", requires = "light_dir")]
     pub cone_deg: Option<f32>,
     /// Smooth (glTF) spot falloff instead of a hard cone.
-    #[arg(long)]
+    #[arg(long, help_heading = SCENE)]
     pub smooth: bool,
 }
 
 /// How the CPU relights a frame (section 3.3).
 #[derive(Args, Clone, Debug)]
 pub struct RelightArgs {
-    /// Shadow rays per sender point for the direct light at the senders.
-    #[arg(long, default_value_t = 8)]
+    /// Shadow rays per sender point for the direct light.
+    #[arg(long, value_name = "N", default_value_t = 8, hide = true)]
     pub shadow_rays: u32,
-    /// Cast every shadow ray at every point; by default half are cast first and the rest only
-    /// where those disagree (the penumbra).
-    #[arg(long)]
+    /// Cast every shadow ray, not half first and the rest only in the penumbra.
+    #[arg(long, hide = true)]
     pub all_shadow_rays: bool,
-    /// Sample the direct light only at the sender points, also near the light; by default,
-    /// within a few support radii of the light, it is averaged over each sender's basis
-    /// function so that a hot spot keeps its flux (and the shadow rays end in front of the
-    /// surfaces next to the light).
-    #[arg(long)]
+    /// Sample the direct light at the sender points only, also close to the light.
+    #[arg(long, hide = true)]
     pub point_samples: bool,
-    /// Leave the flat coefficients as flattened (the exact values of Eq. 6 at the flat
-    /// points), without the sharpening steps `c_{k+1} = c_k + w_k (c_0 - W c_k)` that take
-    /// back the flat basis' smoothing.
-    #[arg(long)]
+    /// Skip the sharpening that takes back the flat basis' blur.
+    #[arg(long, hide = true)]
     pub no_sharpen: bool,
-    /// Flatten (and sharpen) every flat point's coefficients each frame; by default only the
-    /// rows of the flat points whose functions may meet the view frustum, and those their
-    /// sharpening reads, are computed (the image is the same).
-    #[arg(long)]
+    /// Relight every flat point each frame, not only those in view (same image, slower).
+    #[arg(long, hide = true)]
     pub no_view_culling: bool,
-    /// Steps of the sharpening (iterated Shepard correction), 1 to 16: each takes back more of
-    /// the flat basis' smoothing for one more product of its weights `W` (every second step
-    /// over-relaxed, its correction weighted by 2.5).
-    #[arg(long, default_value_t = mlt_relight::flatten_op::SHARPEN_STEPS)]
+    /// Sharpening steps, 1 to 16: more take back more of the flat basis' blur.
+    #[arg(long, value_name = "N", default_value_t = mlt_relight::flatten_op::SHARPEN_STEPS,
+          hide = true)]
     pub sharpen_steps: usize,
-    /// Leave the finer receivers with the first bounce only, as the bake's `S` has them (the
-    /// paper's relighting; also turns the bounce-light feedback off): by default, for a file
-    /// whose bounces 2 and later were computed on the coarsest receivers, they are added at
-    /// the finer receivers each frame from the level-0 coefficients of `S e`, through the
-    /// finer receivers' links to level-0 senders.
-    #[arg(long)]
+    /// Give the finer levels the first bounce only, as the paper (also no --bounce-feedback).
+    #[arg(long, hide = true)]
     pub no_fine_bounces: bool,
-    /// Steps of the bounce-light feedback: the finer receivers' bounce light, which the
-    /// bake's chain of bounces through the coarsest receivers leaves out, re-emitted each
-    /// frame through the level-0 rows of `S` (the indirect light as the fixed point of
-    /// `i = S (e + P-dagger (n . R i) - y(i))`). 0 turns it off; `--no-fine-bounces` turns
-    /// it off too (the paper's relighting), and files whose bounces ran on every receiver, or
-    /// with one bounce, never get it. Each step costs about one `S e`; a second moves the
-    /// mean by under 1 %. At most 16. Default 0 for a file whose level-0 bounces were traced
-    /// as paths (the default bake; `bake --level0-paths`): its level-0 rows hold every bounce
-    /// already, and re-emitting through them would count the later bounces twice; 1 for a
-    /// file that chains them (`bake --preset paper`, `--level0-paths 0`).
-    #[arg(long, value_name = "STEPS", value_parser = clap::value_parser!(u32).range(0..=16))]
+    /// Feed the finer levels' bounce light back N times a frame, 0 to 16 (default 1 for
+    /// --preset paper files, else 0).
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(0..=16),
+          hide = true)]
     pub bounce_feedback: Option<u32>,
-    /// Lagged bounce light, for a moving light: each frame applies the bounce light
-    /// computed from the previous frame's indirect light in the same pass as `S e`, instead
-    /// of a pass of its own after it: the feedback's correction (files that chain their
-    /// bounces; on Sponza 4-5 ms less per frame on 2 cores) or the fine bounces' emission
-    /// from every sender point, which the finer rows take added to the direct light (files
-    /// with traced level-0 rows, the default bake; on textured Sponza 6 ms less, the built-in
-    /// Cornell box 0.7 ms). A moving light's lagged part is a frame late, and frame after
-    /// frame it iterates toward a fixed point (with the fine bounces one that also re-emits
-    /// the finer receivers' later bounces); a light that stops gets one more frame with its
-    /// own, a further step. The first frame is exact. `auto`: on in the window (`view
-    /// open`) wherever a part is lagged, off for images and timings.
-    #[arg(long, value_enum, default_value_t = FeedbackLag::Auto)]
+    /// Reuse last frame's bounce light while the light moves, to save time: auto (in the
+    /// window), on, off.
+    #[arg(long, value_enum, value_name = "auto|on|off", hide_possible_values = true,
+          default_value_t = FeedbackLag::Auto, display_order = 900, hide = true)]
     pub feedback_lag: FeedbackLag,
-    /// How the finer receivers' bounces 2 and later are emitted, for a file whose bounces 2
-    /// and later were computed on the coarsest receivers: `senders` re-emits the indirect
-    /// light at every sender point, pull-pushed onto the sender levels like the direct light,
-    /// through the finer receivers' whole rows of `S` (about 0.011 better per pixel on Sponza,
-    /// one more product of the finer rows per frame); `level0` takes the level-0 coefficients
-    /// through their links to level-0 senders only. With the bounce-light feedback on (files
-    /// that chain their bounces) `level0` is used.
-    #[arg(long, value_enum, default_value_t = FineEmissionArg::Senders)]
+    /// Where the finer levels' later bounces are emitted from: every sender point, or level 0.
+    #[arg(long, value_enum, value_name = "senders|level0", hide_possible_values = true,
+          default_value_t = FineEmissionArg::Senders, hide = true)]
     pub fine_emission: FineEmissionArg,
-    /// For experiments: build the flat basis with this neighbour count and radius factor
-    /// (`K,F`: each flat radius F times the distance to the K-th nearest flat point; `K,F,H,R`
-    /// also sets the hole weight and reach, `K,F,H,R,C` the finer cover above which a coarser
-    /// point is left out, 0 keeping every needed point) instead of reading the file's or
-    /// building it by the default rule.
-    #[arg(long, value_parser = parse_flat_rule)]
+    /// Build the flat basis by this rule instead of the file's (for experiments).
+    #[arg(long, value_name = "K,F[,H,R[,C]]", value_parser = parse_flat_rule, hide = true)]
     pub flat_rule: Option<FlatRule>,
-    /// For experiments: the exponent `p` of the flat weights' normal factor `(n . n_i)^p`, at
-    /// least 2 (2: Eq. 8's own weights, as before this build), with which the flat basis is
-    /// splatted and sharpened.
+    /// The exponent of the flat weights' normal factor, at least 2 (for experiments).
     #[arg(long, value_name = "P", default_value_t = FLAT_NORMAL_POWER,
-          value_parser = parse_normal_power)]
+          value_parser = parse_normal_power, hide = true)]
     pub flat_normal_power: f32,
 }
 
@@ -245,13 +214,12 @@ fn parse_flat_rule(s: &str) -> Result<FlatRule, String> {
 /// How the GPU renders.
 #[derive(Args, Clone, Debug)]
 pub struct GpuArgs {
-    /// Where the fourth relighting stage, flattening, runs: `gpu` (a compute pass), `cpu`, or
-    /// `auto`: the GPU unless the adapter is a software rasteriser (on llvmpipe the compute
-    /// pass costs more of the same CPU than the CPU path).
-    #[arg(long, value_enum, default_value_t = FlattenOn::Auto)]
+    /// Where flattening runs: gpu, cpu, or auto (the GPU unless it is a software one).
+    #[arg(long, value_enum, value_name = "auto|cpu|gpu", hide_possible_values = true,
+          default_value_t = FlattenOn::Auto, hide = true)]
     pub flatten: FlattenOn,
-    /// Shadow-map resolution of the rendered direct light.
-    #[arg(long, default_value_t = 1024)]
+    /// Shadow-map resolution of the direct light, in pixels.
+    #[arg(long, value_name = "PX", default_value_t = 1024, hide = true)]
     pub shadow_res: u32,
 }
 
@@ -282,11 +250,11 @@ impl FlattenOn {
 /// Probe points in and irradiance out.
 #[derive(Args, Clone, Debug)]
 pub struct ProbeArgs {
-    /// Probe points, rows x,y,z,nx,ny,nz.
-    #[arg(long)]
+    /// Probe points: a CSV of rows x,y,z,nx,ny,nz.
+    #[arg(long, value_name = "CSV")]
     pub probe: PathBuf,
-    /// Where to write the probes' irradiance.
-    #[arg(long)]
+    /// Where to write the probes' irradiance (CSV).
+    #[arg(long, value_name = "CSV")]
     pub probe_out: PathBuf,
 }
 

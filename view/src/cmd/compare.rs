@@ -14,11 +14,9 @@ use mlt_view::images::{luminance, RgbImage};
 /// Compares images (or probes) against the brute-force reference.
 #[derive(Args, Debug)]
 pub struct CompareArgs {
-    /// Reference directory (reference_{indirect,final,noise}.exr, reference.json), or with
-    /// --probes the reference's probe CSV.
+    /// The reference's directory (from `view reference`), or with --probes its probe CSV.
     pub reference: PathBuf,
-    /// Directory with indirect.exr and final.exr (falls back to reference_*.exr), or with
-    /// --probes the CSV of `view probe --probe-out`.
+    /// A directory of `view render` (or another reference), or with --probes a `view probe` CSV.
     pub test: PathBuf,
     /// Compare probe CSVs instead of image directories.
     #[arg(long)]
@@ -26,16 +24,10 @@ pub struct CompareArgs {
     /// Print JSON instead of text.
     #[arg(long)]
     pub json: bool,
-    /// Also write a PNG for people: the test's indirect image, the reference's, and their
-    /// absolute difference, side by side, all with the reference's tone mapping (Reinhard
-    /// 2002, key measured on the reference indirect image).
-    #[arg(long)]
+    /// Also write a PNG of the test's indirect light, the reference's and their difference.
+    #[arg(long, value_name = "PNG")]
     pub side_by_side: Option<PathBuf>,
-    /// Also break the indirect image's error down by part of the image: a grid of tiles
-    /// (`COLSxROWS`, 4x3 when no value is given) and five classes of the reference's
-    /// brightness (darkest first). Per part: its share of the reference's light, its ratio of
-    /// means, its relative RMSE and its share of the whole image's error in the mean (these add
-    /// up to the ratio of means less one).
+    /// Also break the error down by image tile (4x3 if no grid is given) and by brightness.
     #[arg(long, value_name = "COLSxROWS", num_args = 0..=1, default_missing_value = "4x3",
           value_parser = parse_grid)]
     pub breakdown: Option<(usize, usize)>,

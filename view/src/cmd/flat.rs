@@ -21,14 +21,11 @@ pub struct FlatArgs {
     /// Print the figures as JSON instead of text.
     #[arg(long)]
     pub json: bool,
-    /// Also measure the flat image with each flat point's value taken at the pixel's own
-    /// normal against the exact one: what flattening changes apart from Eq. 6's dependence on
-    /// the normal through its weights (slow: about 20 s at 640x360 on Sponza).
-    #[arg(long)]
+    /// Also measure flattening with each flat point taken at the pixel's own normal (slow).
+    #[arg(long, hide = true)]
     pub by_normal: bool,
-    /// Also list up to N flagged pixels (the uncovered ones, then those below a quarter of the
-    /// exact image) with their surface point, normal, covering functions and both values.
-    #[arg(long, value_name = "N", default_value_t = 0)]
+    /// Also list up to N flagged pixels with their surface point and covering functions.
+    #[arg(long, value_name = "N", default_value_t = 0, hide = true)]
     pub list: usize,
 }
 

@@ -1,9 +1,10 @@
-//! The subcommands of `view`, one module each, with the options they share ([`args`]) and the
-//! one loader of files, scenes and lights ([`load`]).
+//! The subcommands of `view`, one module each, with the options they share ([`args`]), the
+//! one loader of files, scenes and lights ([`load`]) and `--help-advanced` ([`help`]).
 
 pub mod args;
 pub mod compare;
 pub mod flat;
+pub mod help;
 pub mod load;
 pub mod open;
 pub mod probe;

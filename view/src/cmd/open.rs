@@ -15,17 +15,14 @@ pub struct OpenArgs {
     pub baked: BakedArgs,
     #[command(flatten)]
     pub gpu: GpuArgs,
-    /// For scripts and tests: after N frames save a screenshot of every view
-    /// (window-MODE.png in --screenshot-dir) and close.
-    #[arg(long)]
+    /// For scripts: after N frames save a screenshot of every view and close.
+    #[arg(long, value_name = "N", hide = true)]
     pub exit_after_frames: Option<u32>,
-    /// Where the window saves screenshots (P key).
-    #[arg(long, default_value = ".")]
+    /// Where the P key saves screenshots.
+    #[arg(long, value_name = "DIR", default_value = ".")]
     pub screenshot_dir: PathBuf,
-    /// For measurements: move the light every frame on the circle of `view render --frames`
-    /// (radius 5 % of the scene's diagonal), so that every frame relights and splats; with
-    /// --exit-after-frames, the median frame time is printed.
-    #[arg(long)]
+    /// Move the light every frame, for timings (with --exit-after-frames: print the median).
+    #[arg(long, hide = true)]
     pub moving_light: bool,
 }
 

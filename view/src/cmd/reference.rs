@@ -22,33 +22,33 @@ use crate::cmd::load::{input_setting, Setting};
 /// Renders the brute-force reference (path tracing, no basis) of the viewer's images.
 #[derive(Args, Debug)]
 pub struct ReferenceArgs {
-    /// A baked .mlt file, or a scene (manifest .toml, .obj/.gltf/.glb, builtin:NAME?...).
+    /// A baked .mlt file, or a scene (manifest .toml, .obj, .gltf, .glb, builtin:NAME).
     pub input: String,
     #[command(flatten)]
     pub scene: SceneArgs,
-    /// Write reference_*.exr, reference.png and reference.json here.
-    #[arg(long)]
+    /// Where to write reference_*.exr, reference.png and reference.json.
+    #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
-    /// Paths per pixel or probe (even: two independent halves).
-    #[arg(long, default_value_t = 256)]
+    /// Paths per pixel or probe, even (its two halves measure the noise).
+    #[arg(long, value_name = "N", default_value_t = 256)]
     pub spp: u32,
-    /// Seed of the random streams.
-    #[arg(long, default_value_t = 1)]
+    /// Seed of the random numbers.
+    #[arg(long, value_name = "S", default_value_t = 1)]
     pub seed: u64,
-    /// Hard cap on the path length (Russian roulette ends most paths long before).
-    #[arg(long, default_value_t = DEFAULT_MAX_BOUNCES)]
+    /// The longest path, in bounces (Russian roulette ends most paths long before).
+    #[arg(long, value_name = "N", default_value_t = DEFAULT_MAX_BOUNCES, hide = true)]
     pub max_bounces: u32,
-    /// Probe points, rows x,y,z,nx,ny,nz (as `view probe --probe`).
-    #[arg(long, requires = "probe_out")]
+    /// Probe points: a CSV of rows x,y,z,nx,ny,nz, as for `view probe`.
+    #[arg(long, value_name = "CSV", requires = "probe_out")]
     pub probe: Option<PathBuf>,
     /// Where to write the probes' reference irradiance (CSV with standard errors).
-    #[arg(long, requires = "probe")]
+    #[arg(long, value_name = "CSV", requires = "probe")]
     pub probe_out: Option<PathBuf>,
-    /// Write probe points where the camera sees the scene (a COLSxROWS grid of pixels) here.
-    #[arg(long)]
+    /// Write probe points here: where the camera sees the scene, on a grid of pixels.
+    #[arg(long, value_name = "CSV")]
     pub make_probes: Option<PathBuf>,
-    /// Grid of --make-probes, COLSxROWS.
-    #[arg(long, default_value = "32x18")]
+    /// The pixel grid of --make-probes.
+    #[arg(long, value_name = "COLSxROWS", default_value = "32x18")]
     pub probe_grid: String,
 }
 

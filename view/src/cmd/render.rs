@@ -27,41 +27,34 @@ use crate::cmd::load::{with_viewing, Viewing};
 pub struct RenderArgs {
     #[command(flatten)]
     pub baked: BakedArgs,
-    /// Output directory.
-    #[arg(long)]
+    /// Output directory: direct.exr, indirect.exr, final.exr, final.png and timings.json.
+    #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
     #[command(flatten)]
     pub gpu: GpuArgs,
-    /// Relight and render N frames with the light moving on a circle and report per-stage
-    /// medians (the images are of the requested light).
-    #[arg(long)]
+    /// Also time N frames with the light moving on a small circle (per-stage medians).
+    #[arg(long, value_name = "N")]
     pub frames: Option<u32>,
-    /// Sub-pixel positions per pixel of the images, stratified and the same on every run, averaged
-    /// (a box filter over the pixel, as the reference); 1 renders the pixel centres. The
-    /// relighting is done once; only the G-buffer and the passes after it are redrawn.
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=1024))]
+    /// Positions per pixel, averaged: the reference's box filter (1: the pixel centres).
+    #[arg(long, value_name = "N", default_value_t = 1,
+          value_parser = clap::value_parser!(u32).range(1..=1024))]
     pub spp: u32,
-    /// Also render the brute-force path-traced reference with SPP paths per pixel (even; two
-    /// independent halves state its noise) into DIR/reference_*.exr, reference.png and
-    /// reference.json, for `view compare`.
-    #[arg(long)]
+    /// Also path-trace the reference with SPP paths per pixel (even), for `view compare`.
+    #[arg(long, value_name = "SPP")]
     pub reference: Option<u32>,
-    /// Seed of the reference's random streams.
-    #[arg(long, default_value_t = 1)]
+    /// Seed of the reference's random numbers.
+    #[arg(long, value_name = "S", default_value_t = 1, hide = true)]
     pub reference_seed: u64,
-    /// Also render the basis floor into DIR/oracle/: the indirect vector irradiance
-    /// path-traced with SPP paths at every basis point, projected with Eq. 7 and rendered with
-    /// the bake's flattening and splatting (compare with: view compare DIR DIR/oracle).
-    #[arg(long)]
+    /// Also render the basis floor, coefficients path-traced with SPP paths, into DIR/oracle.
+    #[arg(long, value_name = "SPP", hide = true)]
     pub oracle: Option<u32>,
-    /// With --oracle: take the oracle's coefficients on levels A..B only (A up to but not
-    /// including B, e.g. 0..1 for level 0) and the bake's on the others, to see which levels
-    /// hold the transport's error.
-    #[arg(long, value_name = "A..B", requires = "oracle", value_parser = parse_levels)]
+    /// With --oracle: the oracle's coefficients on levels A..B only, the bake's on the others.
+    #[arg(long, value_name = "A..B", requires = "oracle", value_parser = parse_levels,
+          hide = true)]
     pub oracle_levels: Option<Range<usize>>,
-    /// With --oracle: path length cap of the oracle's paths (1: the first bounce alone, to
-    /// compare with a `bake --bounces 1` file and `view reference --max-bounces 1`).
-    #[arg(long, requires = "oracle", value_parser = clap::value_parser!(u32).range(1..))]
+    /// With --oracle: the oracle's longest path, in bounces (1: the first bounce only).
+    #[arg(long, value_name = "N", requires = "oracle",
+          value_parser = clap::value_parser!(u32).range(1..), hide = true)]
     pub oracle_max_bounces: Option<u32>,
 }
 

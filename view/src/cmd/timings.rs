@@ -14,16 +14,18 @@ use mlt_view::Relight;
 use crate::cmd::args::BakedArgs;
 use crate::cmd::load::{with_viewing, Viewing};
 
-/// Times the CPU relighting stages.
+/// Times the CPU relighting stages. `--feedback-lag`, advanced elsewhere, is one of its
+/// everyday options: `on` times the frame as the window runs it.
 #[derive(Args, Debug)]
+#[command(mut_arg("feedback_lag", |a| a.hide(false)))]
 pub struct TimingsArgs {
     #[command(flatten)]
     pub baked: BakedArgs,
-    /// Frames to relight.
-    #[arg(long, default_value_t = 1)]
+    /// Frames to relight, the light moving on a small circle.
+    #[arg(long, value_name = "N", default_value_t = 1)]
     pub frames: u32,
-    /// Write the timings (JSON) here instead of stdout.
-    #[arg(long)]
+    /// Write the timings (JSON) here instead of standard output.
+    #[arg(long, value_name = "FILE")]
     pub timings_out: Option<PathBuf>,
 }
 

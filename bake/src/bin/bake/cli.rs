@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use clap::{Args, Parser, Subcommand};
 use mlt_bake::BakeOptions;
 
-/// Bakes the meshless hierarchical basis of a scene (Lehtinen et al. 2008) into one file.
+/// Bakes a scene's light transport (Lehtinen et al. 2008) into one file for `view`.
 #[derive(Parser)]
 #[command(name = "bake", version, args_conflicts_with_subcommands = true)]
 pub struct Cli {
@@ -17,16 +17,11 @@ pub struct Cli {
 
 #[derive(Subcommand)]
 pub enum Command {
-    /// Combines the shard files of `bake SCENE --shard I/N` (all N of them, any order) into
-    /// the file a single bake gives.
+    /// Combines the shards of `bake SCENE --shard I/N` into the file one bake would give.
     Merge(MergeArgs),
-    /// Bakes every job of the given manifests (scene manifests, or batch manifests listing
-    /// [[job]] entries): NAME.mlt and NAME.json per job in --out-dir, and summary.json and
-    /// summary.md. Jobs whose outputs carry the same input key are skipped. Exits 1 when any
-    /// job failed, after all the others finished.
+    /// Bakes every job of scene or batch manifests into --out-dir, skipping those up to date.
     Batch(BatchArgs),
-    /// Prints the paper's Table-1 columns for baked files (or --stats-json outputs), side by
-    /// side; with --against, next to the paper's row or another bake, with ratios.
+    /// Prints the paper's Table-1 figures of baked files, beside the paper's or another bake's.
     Stats(StatsArgs),
     /// Prints what a baked file holds: version, scene, parameters, levels, sections.
     Info(InfoArgs),
@@ -35,18 +30,20 @@ pub enum Command {
 /// `bake merge` (see the subcommand's help).
 #[derive(Args)]
 pub struct MergeArgs {
+    /// The shard files, all N of them, in any order.
     #[arg(required = true)]
     pub shards: Vec<PathBuf>,
-    #[arg(short, long)]
+    /// The merged file.
+    #[arg(short, long, value_name = "FILE")]
     pub output: PathBuf,
-    /// The shards' scene (as given to `bake`), needed where they were baked with
-    /// --level0-paths: the merge traces those paths, which end in the whole of T. Checked
-    /// against the scene the shards record.
+    /// The shards' scene, as given to `bake`: needed unless they were baked with
+    /// --level0-paths 0.
     #[arg(long, value_name = "SCENE")]
     pub scene: Option<String>,
-    /// zstd-compress the file's sections.
+    /// Compress the file with zstd: smaller, but read into memory instead of mapped.
     #[arg(long)]
     pub compress: bool,
+    /// Print only warnings and errors.
     #[arg(short, long)]
     pub quiet: bool,
 }
@@ -54,23 +51,25 @@ pub struct MergeArgs {
 /// `bake batch` (see the subcommand's help).
 #[derive(Args)]
 pub struct BatchArgs {
+    /// Scene manifests, or batch manifests listing [[job]] entries.
     #[arg(required = true)]
     pub manifests: Vec<PathBuf>,
-    #[arg(long)]
+    /// Where to write NAME.mlt and NAME.json per job, and summary.md and summary.json.
+    #[arg(long, value_name = "DIR")]
     pub out_dir: PathBuf,
     /// Jobs baked at once (they share the threads).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, value_name = "N", default_value_t = 1)]
     pub jobs: usize,
     /// Worker threads in all (default: all cores).
-    #[arg(long)]
+    #[arg(long, value_name = "N")]
     pub threads: Option<usize>,
     /// Bake even the jobs whose outputs are up to date.
     #[arg(long)]
     pub force: bool,
     /// Store wall-clock timings in the files (they then differ from run to run).
-    #[arg(long)]
+    #[arg(long, hide = true)]
     pub record_timings: bool,
-    /// zstd-compress the files' sections.
+    /// Compress the files with zstd: smaller, but read into memory instead of mapped.
     #[arg(long)]
     pub compress: bool,
     /// Print the summary as JSON instead of Markdown.
@@ -84,11 +83,11 @@ pub struct BatchArgs {
 /// `bake stats` (see the subcommand's help).
 #[derive(Args)]
 pub struct StatsArgs {
-    /// .mlt files or JSON statistics written by --stats-json.
+    /// Baked .mlt files, or the JSON statistics of `bake --stats-json`.
     #[arg(required = true)]
     pub files: Vec<PathBuf>,
-    /// paper:sponza, paper:greathall, paper:jadepalace, or another .mlt / stats .json.
-    #[arg(long)]
+    /// Compare with paper:sponza, paper:greathall, paper:jadepalace, or another .mlt or .json.
+    #[arg(long, value_name = "WHAT")]
     pub against: Option<String>,
     /// Machine-readable JSON instead of text.
     #[arg(long)]
@@ -98,6 +97,7 @@ pub struct StatsArgs {
 /// `bake info` (see the subcommand's help).
 #[derive(Args)]
 pub struct InfoArgs {
+    /// A file written by `bake`.
     pub file: PathBuf,
     /// Machine-readable JSON instead of text.
     #[arg(long)]
@@ -107,24 +107,24 @@ pub struct InfoArgs {
 /// `bake [SCENE]`: the bake's parameters ([`BakeOptions`]) and what to do with its output.
 #[derive(Args)]
 pub struct BakeArgs {
-    /// A manifest (.toml), a mesh (.obj, .gltf, .glb) or a built-in scene
-    /// (builtin:cornell, builtin:sphere?albedo=0.5&radius=1, ...). Default: builtin:cornell.
+    /// A manifest (.toml), a mesh (.obj, .gltf, .glb) or builtin:cornell, builtin:sphere, ...
+    /// (default: builtin:cornell).
     pub scene: Option<String>,
-    /// Output file (default: the scene's name with extension .mlt, in the current directory).
-    #[arg(short, long)]
+    /// Output file (default: the scene's name with .mlt, in the current directory).
+    #[arg(short, long, value_name = "FILE")]
     pub output: Option<PathBuf>,
     #[command(flatten)]
     pub options: BakeOptions,
-    /// Worker threads (default: all cores). The result does not depend on it.
-    #[arg(long)]
+    /// Worker threads (default: all cores); the file is the same whatever the count.
+    #[arg(long, value_name = "N")]
     pub threads: Option<usize>,
-    /// Also write the statistics as JSON to this path.
-    #[arg(long)]
+    /// Also write the statistics (the paper's Table-1 figures, rays, times) as JSON here.
+    #[arg(long, value_name = "FILE")]
     pub stats_json: Option<PathBuf>,
-    /// Print only errors and the output path.
+    /// Print only warnings, errors and the output path.
     #[arg(short, long)]
     pub quiet: bool,
-    /// Print the statistics JSON on standard output instead of the output path.
+    /// Print the statistics as JSON on standard output instead of the output path.
     #[arg(long)]
     pub json: bool,
 }

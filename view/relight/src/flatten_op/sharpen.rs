@@ -42,8 +42,8 @@ use crate::error::RelightError;
 
 /// Steps of the correction by default: one plain step and one over-relaxed, which leave the
 /// flat image closer to the exact evaluation of Eq. 6 than three plain steps do, for two
-/// products of `W` instead of three (BENCHMARKS.md, "Two sharpening steps, the second
-/// over-relaxed").
+/// products of `W` instead of three (docs/design.md, "The flat basis"; the figures in
+/// BENCHMARKS.md, "Flattening, sharpening and view culling").
 pub const SHARPEN_STEPS: usize = 2;
 
 /// The relaxation weight of every second step ([`step_weight`]): the middle of the range (2.4

@@ -7,103 +7,24 @@
 //! - the sender is on the coarsest level and `||T_ij|| > epsilon`, or
 //! - the sender is finer, `||T_ij|| > epsilon` and `max_k ||T_ij - T_ik|| > epsilon` over the
 //!   sender's neighbours `k` (Appendix A: finer senders carry deviations from local averages,
-//!   so similar links to neighbouring senders cancel).
+//!   so similar links to neighbouring senders cancel),
 //!
-//! One deliberate departure: a link between a coarsest-level receiver and a coarsest-level sender
-//! is always kept (when non-zero), whatever its magnitude. The paper's justification for
-//! dropping small links ("the effect of this sender has been correctly accounted for by the
-//! higher levels of receiver hierarchy") holds for finer receivers, whose links are differences
-//! (Eq. 17), but the coarsest receivers have no higher level: there a dropped link is light
-//! lost. With our Eq. 16 (which includes the 1/pi of Lambertian reflection) a coarsest link is
-//! about `rho / (number of coarse senders a receiver sees)`, well under the paper's
-//! epsilon = 0.025 in a closed room of 339 coarse points, so the literal rule would drop almost
-//! all of those links and with them most of the indirect light of a closed room. The level-0
-//! block costs at most `N_0^2` links (115k for 339 points, about 2 MB). A finer receiver where
-//! no coarser level has support is such a base too: its links to coarsest senders are full
-//! values (Eq. 17 subtracts nothing), so it gets the same rule (they do not queue its
-//! children), and it is queued even though no coarser receiver has it as a child.
-//!
-//! A second departure: **level 0 keeps every non-zero link, to finer senders too.** Fig. 5
-//! tests each link on its own, but a receiver sees thousands of finer senders whose links are
-//! each far below epsilon (a link is about `rho / (senders of its level seen)`) and together
-//! carry the emission's detail (the pull-push differences of section 3.3: a hot spot, the edge
-//! of a shadow). A coarsest receiver has no coarser level to represent what it drops, and its
-//! descendants test their own differences link by link, so without these links the detail
-//! reaches the receivers that see it from afar only through the coarse senders' averages: a
-//! tenth or more of a large room's indirect light was lost that way. A finer sender's support
-//! is small, so few gather rays hit it and its links are noisy; times a near light's large
-//! detail coefficient, that noise shows as bright disks of the coarse functions. Level-0
-//! receivers therefore gather with [`COARSE_GATHER_FACTOR`] times the rays (they are few: a
-//! fraction of a percent of the receivers), and a level-0 receiver with links queues its
-//! children, so that finer receivers correct what its wide function spreads.
-//!
-//! A third departure: **level 1 keeps its sub-epsilon links to coarsest senders by a budget,
-//! away from contacts.** Of the links to coarsest senders that Fig. 5 drops, a level-1 receiver
-//! keeps all but the smallest whose norms sum to at most epsilon, so that its irradiance moves
-//! by at most about epsilon times the largest sender coefficient; these links queue no
-//! children. Near a contact a level-1 function straddles surfaces whose light differs, and its
-//! budget corrections, computed at level-1 points, overshoot between them (dark lines where a
-//! block stands on the floor), which level 2, testing link by link, does not correct. So a
-//! receiver with more than [`CONTACT_FRACTION`] of its gather hits within its level's disk
-//! radius keeps Fig. 5 alone. Level 1 gathers with [`BUDGET_GATHER_FACTOR`] times the rays,
-//! since a budget keeps links whose size is near the gather's noise.
-//!
-//! **At contacts the budget moves down to level 2** ([`keeps_budget`]): a level-2 receiver
-//! with more than [`CONTACT_FRACTION`] of its gather hits within its own (half as wide) disk
-//! radius keeps the same budget. Where two surfaces meet, the light a point receives changes
-//! over the distance to the other surface: a wall's irradiance falls toward the ceiling it
-//! meets, the floor darkens where a block stands on it (the floor there sees the block's unlit
-//! side over half its hemisphere). That change is spread over many coarsest senders (the other
-//! surface in place of what lies beyond it), so every single link difference is below
-//! epsilon and Fig. 5 keeps none of them: the light leaked under the blocks and the corners
-//! were too bright. Level 2 is fine enough not to straddle the contact the way level 1 does;
-//! its budget darkens the contact where the true light is dark (checked against the
-//! path-traced reference, not against the neighbourhood).
-//!
-//! **Away from contacts too, levels 2 and 3 keep that budget.** A finer receiver's links to
-//! coarsest senders are its differences from its parents' view (Eq. 17); away from contacts
-//! they are each below epsilon as well, but over a large wall or floor they lean the same way
-//! (the parents' wide functions average the wall with what lies beside it), so dropping them
-//! one by one takes light from whole surfaces. In the conference room, full of chairs, that was
-//! 2.6 % of the first bounce where the camera looks, the walls 10-15 % dark: more than the
-//! projection of the direct light (0.6 %) and the receiver basis (0.4 %) together, and unseen
-//! at the receiver points themselves, where the kept rows reconstruct about what was gathered.
-//! Levels 4 and finer keep Fig. 5 alone: there the budget keeps ten to twenty times the links
-//! for little more light. Nor does the finest level of a file keep it away from contacts (a
-//! level 2 or 3 that is the finest, in a basis of three or four levels): no finer level
-//! corrects its overshoot between its points, which showed as dark pixels on a three-level
-//! Cornell box.
-//!
-//! **Levels 2 and 3 keep their links to finer senders by a budget**
-//! ([`keeps_finer_budget`]). A link to a finer sender is how a receiver sees the emission's
-//! detail there (the pull-push difference of a lit patch, the edge of a shadow); a finer
-//! receiver's is a difference from its parents' view (Eq. 17). Each is far below epsilon, so
-//! Fig. 5 drops them one by one and the detail reaches these receivers only through level 0's
-//! wide functions: the first bounce came out too smooth, its brightest parts (the walls beside a
-//! lit floor) too dark and its darkest too bright, and untextured Sponza's image 7 % dark
-//! where the receiver basis itself, given the true first bounce, loses nothing. Of the finer
-//! links Fig. 5 drops, a level-2 or level-3 receiver keeps all but the smallest whose norms sum
-//! to at most [`FINER_BUDGET_FACTOR`] times epsilon. Most such links rest on one or two of the
-//! gather's hits, so these levels gather with [`FINER_GATHER_FACTOR`] times the rays (with the
-//! bake's rays alone, the kept links' noise times a near light's detail coefficients showed as
-//! blotches on the Cornell box's walls), and a link the gather hit only once is not kept by
-//! the budget ([`MIN_BUDGET_HITS`]): it is a one-sample estimate, mostly noise. Where the
-//! emission's detail is real (pillars, arcades and their shadows, seen by several rays) the
-//! links rest on several hits and the budget keeps them; where a small sender under a near
-//! light was hit once (the Cornell box's ceiling), the link is the gather's noise times a large
-//! detail coefficient, and the test leaves it out. That is what lets the budget be small
-//! ([`FINER_BUDGET_FACTOR`]) without adding noise. The budget links queue no children. At level 1 the
-//! same rule gained 3 % per pixel on untextured Sponza's first bounce for 5x that level's
-//! links; levels 4 and finer, with 3-10x level 3's receivers, were not tried.
+//! and, beyond that test, by the rules of the [`RefinePolicy`] ([`policy`]): the links a
+//! coarsest receiver (which has no coarser level to represent what it drops) keeps outright,
+//! the budgets by which the middle levels keep links that lean the same way, and the gather
+//! rays of each level. When a link passed the paper's test, the receiver's children are queued
+//! for the next level. Points that no coarser level supports are queued for their own level
+//! regardless (otherwise their coefficient would stay zero).
 //!
 //! Refinement also sums, under uniform emission at the coarsest senders, the single-bounce light
 //! of the links it drops at receivers whose children are not refined against that of all the
 //! links it keeps ([`RefineStats::dropped_share`]), and per row the same under the file's light
 //! (`drop_estimate`, stored in the file).
 //!
-//! When any link of a receiver passed the test, its children are queued for the next level. The
-//! receivers of a level are processed in parallel; each one's result depends only on its index,
-//! the seed and the coarser levels, so T is identical for any thread count.
+//! The receivers of a level are processed in parallel; each one's result depends only on its
+//! index, the seed and the coarser levels, so T is identical for any thread count.
+
+pub mod policy;
 
 use mlt_format::adjacency::Csr;
 use mlt_format::links::LINK_DIM;
@@ -115,74 +36,7 @@ use rayon::prelude::*;
 use crate::drop_estimate::applied;
 use crate::gather::{gather, link_distance, link_norm, GatherCounts, Scratch};
 use crate::sender_cells::SenderCells;
-
-/// Gather rays of a level-0 receiver as a multiple of the bake's `gather_rays`: it keeps links
-/// to small senders (module docs), whose noise falls with the rays, and level 0 is small.
-pub const COARSE_GATHER_FACTOR: u32 = 16;
-
-/// Gather rays of a level-1 receiver as a multiple of the bake's `gather_rays` (module docs:
-/// its budget keeps links near the gather's noise).
-pub const BUDGET_GATHER_FACTOR: u32 = 4;
-
-/// A level-1 receiver with more than this share of its gather hits nearer than its level's
-/// disk radius is at a contact and keeps Fig. 5 alone (module docs).
-pub const CONTACT_FRACTION: f32 = 0.05;
-
-/// The budget of a level-2 or level-3 receiver's dropped links to finer senders, in units of
-/// epsilon (module docs). Each link is a sample of the emission's detail that the gather's rays
-/// hit a few times, so the budget is large: it drops the many smallest, keeps the largest.
-/// Smaller budgets keep more of the detail for many more links (docs/error_sources.md).
-pub const FINER_BUDGET_FACTOR: f32 = 20.0;
-
-/// A link to a finer sender that the gather hit fewer times than this (but at least once) is
-/// not kept by the budget: it is one sample of the emission's detail, mostly noise (module
-/// docs). Links the gather did not hit at all are the parents' view corrected by Eq. 17 and
-/// stay candidates.
-pub const MIN_BUDGET_HITS: u16 = 2;
-
-/// Whether a finer link resting on `hits` of the gather's hits may be kept by the budget
-/// ([`MIN_BUDGET_HITS`]).
-pub fn budget_sampled(hits: u16) -> bool {
-    hits == 0 || hits >= MIN_BUDGET_HITS
-}
-
-/// Gather rays of a level-2 or level-3 receiver as a multiple of the bake's `gather_rays`
-/// (module docs): the links its finer-sender budget keeps rest on few hits each, and with the
-/// bake's rays alone their noise, times a near light's large detail coefficients, shows as
-/// blotches.
-pub const FINER_GATHER_FACTOR: u32 = 4;
-
-/// Whether a receiver of `level` keeps its sub-epsilon links to finer senders by a budget of
-/// [`FINER_BUDGET_FACTOR`] epsilon (module docs): levels 2 and 3.
-pub fn keeps_finer_budget(level: usize) -> bool {
-    matches!(level, 2 | 3)
-}
-
-/// Whether a receiver of `level`, in a basis of `levels` levels, keeps its sub-epsilon links to
-/// coarsest senders by a budget (module docs): at level 1 away from contacts, at level 2 at
-/// contacts, and at levels 2 and 3 away from contacts too unless the level is the finest (no
-/// finer level would correct the budget's overshoot between its points).
-pub fn keeps_budget(level: usize, contact: bool, levels: usize) -> bool {
-    match level {
-        1 => !contact,
-        2 if contact => true,
-        2 | 3 => level + 1 < levels,
-        _ => false,
-    }
-}
-
-/// The gather rays of a receiver of `level` when the bake asks for `gather_rays`.
-pub fn gather_rays_at(level: usize, gather_rays: u32) -> u32 {
-    if level == 0 {
-        gather_rays.saturating_mul(COARSE_GATHER_FACTOR)
-    } else if level == 1 {
-        gather_rays.saturating_mul(BUDGET_GATHER_FACTOR)
-    } else if keeps_finer_budget(level) {
-        gather_rays.saturating_mul(FINER_GATHER_FACTOR)
-    } else {
-        gather_rays
-    }
-}
+pub use policy::{RefinePolicy, RefineRule};
 
 /// Receiver-major links of T: one row per processed receiver.
 #[derive(Clone, Debug, Default)]
@@ -264,6 +118,8 @@ pub struct RefineSettings {
     pub sender_levels: usize,
     pub gather_rays: u32,
     pub seed: u64,
+    /// The rules beyond Fig. 5's test.
+    pub policy: RefinePolicy,
 }
 
 /// Counts per receiver level.
@@ -459,7 +315,7 @@ fn process(
         caster,
         i,
         settings.sender_levels,
-        gather_rays_at(level, settings.gather_rays),
+        settings.policy.gather_rays_at(level, settings.gather_rays),
         settings.seed,
         eps_ray,
         scratch,
@@ -483,6 +339,7 @@ fn process(
     scratch.sort_touched();
     let touched = std::mem::take(&mut scratch.touched);
     let eps = settings.epsilon;
+    let policy = &settings.policy;
     let mut links = Vec::new();
     let mut refine = false;
     let mut dropped = [0.0f64; 3];
@@ -497,9 +354,8 @@ fn process(
         let v = scratch.get(j);
         let norm = link_norm(v);
         let kept_by_rule = if norm <= eps {
-            // The base of the hierarchy (module docs): kept. Every link of level 0; the
-            // links to coarsest senders of a finer receiver that no coarser level covers.
-            norm > 0.0 && (level == 0 || (!has_parent && j < sender_coarsest))
+            // The base of the hierarchy (`RefinePolicy::keeps_base_link`).
+            norm > 0.0 && policy.keeps_base_link(level, j < sender_coarsest, has_parent)
         } else {
             let keep = j < sender_coarsest
                 || neighbors
@@ -516,13 +372,17 @@ fn process(
             lose(j, v);
         }
     }
-    // The budgets (module docs): of the links Fig. 5 dropped, keep all but the smallest whose
-    // norms sum to at most the budget; those to coarsest senders at levels 1 to 3
-    // ([`keeps_budget`]), those to finer senders at levels 2 and 3.
-    let contact = counts.near as f32 > CONTACT_FRACTION * counts.rays as f32;
+    // The budgets (`RefinePolicy`): of the links Fig. 5 dropped, keep all but the smallest
+    // whose norms sum to at most the budget; those to coarsest senders at levels 1 to 3
+    // (`keeps_budget`), those to finer senders at levels 2 and 3 (`keeps_finer_budget`).
+    let contact = policy.at_contact(counts.near, counts.rays);
     let budgets = [
-        (keeps_budget(level, contact, ib.levels()), false, eps),
-        (keeps_finer_budget(level), true, eps * FINER_BUDGET_FACTOR),
+        (policy.keeps_budget(level, contact, ib.levels()), false, eps),
+        (
+            policy.keeps_finer_budget(level),
+            true,
+            eps * policy.finer_budget_factor,
+        ),
     ];
     for (on, finer, budget) in budgets {
         if !(on && has_parent) {
@@ -531,7 +391,7 @@ fn process(
         let mut candidates: Vec<(f32, u32)> = touched
             .iter()
             .filter(|&&j| (j >= sender_coarsest) == finer)
-            .filter(|&&j| !finer || budget_sampled(scratch.hits(j)))
+            .filter(|&&j| !finer || policy.budget_sampled(scratch.hits(j)))
             .filter(|&&j| links.binary_search_by_key(&j, |(s, _)| *s).is_err())
             .map(|&j| (link_norm(scratch.get(j)), j))
             .filter(|(norm, _)| *norm > 0.0)
@@ -558,8 +418,8 @@ fn process(
         }
         links.sort_unstable_by_key(|(s, _)| *s);
     }
-    // A level-0 receiver's links below epsilon refine too (module docs).
-    refine |= level == 0 && !links.is_empty();
+    // A level-0 receiver's links below epsilon refine too (`RefinePolicy::level0_refines`).
+    refine |= policy.level0_refines && level == 0 && !links.is_empty();
     scratch.touched = touched;
     let mut kept = [0.0f64; 3];
     for (j, v) in &links {
