@@ -707,3 +707,45 @@ fn the_camera_check_traces_the_analytic_first_bounce_inside_the_sphere() {
     );
     assert_eq!(check(1), c, "the check depends on the thread count");
 }
+
+/// `--refine-off` turns a rule off: level 0 keeps fewer links without its finer links, the
+/// file's tool field and the bake's warnings name it, and the input key differs from the
+/// default bake's (so an incremental bake does not take one for the other).
+#[test]
+fn a_refinement_rule_turned_off_keeps_fewer_links_and_says_so() {
+    use mlt_bake::refine::RefineRule;
+    let opts = |off: Vec<RefineRule>| BakeOptions {
+        receiver_levels: Some(4),
+        coarse_count: Some(40),
+        sender_levels: Some(2),
+        gather_rays: Some(64),
+        bounces: Some(1),
+        level0_paths: Some(0),
+        refine_off: off,
+        ..Default::default()
+    };
+    let t_links = |o: &mlt_bake::BakeOutput| {
+        let t = o.contents.transport.as_ref().expect("transport computed");
+        t.meta.stats.t_links_per_level[0]
+    };
+    let full = bake_with("builtin:cornell", opts(Vec::new()), 2);
+    let off = bake_with(
+        "builtin:cornell",
+        opts(vec![RefineRule::Level0FinerLinks]),
+        2,
+    );
+    assert!(
+        t_links(&off) < t_links(&full),
+        "level 0: {} links with level0-finer-links off, {} with it",
+        t_links(&off),
+        t_links(&full)
+    );
+    assert_eq!(full.contents.meta.tool, mlt_bake::tool_version());
+    assert!(off.contents.meta.tool.contains("level0-finer-links"));
+    assert!(off
+        .warnings
+        .iter()
+        .any(|w| w.contains("level0-finer-links")));
+    assert!(!full.warnings.iter().any(|w| w.contains("refinement rules")));
+    assert_ne!(full.contents.input_key, off.contents.input_key);
+}
