@@ -20,7 +20,7 @@ use std::ffi::OsString;
 use anyhow::Result;
 use clap::{CommandFactory, Parser, Subcommand};
 
-use cmd::help;
+use mlt_help as help;
 
 use cmd::compare::CompareArgs;
 use cmd::flat::FlatArgs;

@@ -1,13 +1,12 @@
 //! `bake`: scene in, versioned memory-mappable basis file out.
 //!
-//! - [`cli`]: the command line (the bake's parameters are [`mlt_bake::BakeOptions`]);
-//! - [`help`]: `--help-advanced`, the help with the tuning and diagnostic options;
+//! - [`cli`]: the command line (the bake's parameters are [`mlt_bake::BakeOptions`]; the help
+//!   and `--help-advanced` are [`mlt_help`]'s);
 //! - [`progress`]: the progress reporter;
 //! - [`commands`]: the bake and the subcommands `merge`, `batch`, `stats` and `info`.
 
 mod cli;
 mod commands;
-mod help;
 mod progress;
 
 use anyhow::Result;
@@ -16,7 +15,10 @@ use clap::CommandFactory;
 use cli::{Cli, Command};
 
 fn main() -> Result<()> {
-    let cli: Cli = help::parse(help::command(Cli::command()), std::env::args_os().collect());
+    let cli: Cli = mlt_help::parse(
+        mlt_help::command(Cli::command()),
+        std::env::args_os().collect(),
+    );
     match cli.command {
         Some(Command::Merge(args)) => commands::merge::run(&args),
         Some(Command::Batch(args)) => commands::batch::run(&args),

@@ -1,8 +1,10 @@
-//! `--help-advanced`: the help with the tuning and diagnostic options shown as well.
+//! The command-line help of `bake` and `view`: `--help` in a user's words, and
+//! `--help-advanced`, the same help with the tuning and diagnostic options shown as well.
 //!
 //! Those options are hidden (`#[arg(hide = true)]`), so that `--help` lists what a user needs;
 //! `--help-advanced`, on the command and on each subcommand, prints the same help with the
-//! hidden options shown under [`ADVANCED`]. (`bake` has the same module.)
+//! hidden options shown under [`ADVANCED`]. Both binaries build their clap command through
+//! [`command`] and parse with [`parse`].
 
 use std::ffi::OsString;
 
