@@ -1,13 +1,14 @@
 //! The printed help of `bake` and `view` (clap's `--help` and `--help-advanced`), read back
 //! entry by entry, so that their tests can hold each option's help to two lines.
 
+use std::collections::BTreeSet;
 use std::ffi::OsStr;
 use std::process::{Command, Stdio};
 
+pub use mlt_help::ADVANCED;
+
 /// The width the help is printed at in the tests, the commands' widest.
-pub const WIDTH: usize = 100;
-/// The heading of the tuning and diagnostic options in `--help-advanced`.
-pub const ADVANCED: &str = "Advanced (tuning and diagnostics)";
+pub const WIDTH: usize = mlt_help::MAX_WIDTH;
 
 /// One entry of a help: an argument, option or subcommand.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -91,6 +92,60 @@ pub fn too_long(help: &str) -> Vec<String> {
         .filter(|e| e.lines > 2)
         .map(|e| format!("{} lines of help: {}", e.lines, e.spec));
     wide.chain(long).collect()
+}
+
+/// The names of a help's entries under `heading` (`under`), or under every other heading.
+pub fn names(help: &str, heading: &str, under: bool) -> BTreeSet<String> {
+    entries(help)
+        .into_iter()
+        .filter(|e| (e.heading == heading) == under)
+        .map(|e| e.name().to_owned())
+        .collect()
+}
+
+/// One command's help, as [`every_command`] read it.
+#[derive(Clone, Debug)]
+pub struct CommandHelp {
+    /// The subcommand, or `None` for the program itself.
+    pub sub: Option<String>,
+    /// The entries `--help` lists.
+    pub shown: BTreeSet<String>,
+    /// The entries only `--help-advanced` lists, under [`ADVANCED`].
+    pub hidden: BTreeSet<String>,
+}
+
+/// The root `--help` of `program` and the help of it and of each of its subcommands, after
+/// asserting what every command's help holds to: `-h` is `--help`; neither help nor the
+/// advanced help has a line over [`WIDTH`] columns or an entry over two lines, and each ends
+/// with [`mlt_help::MORE`]; `--help-advanced` lists `--help`'s entries and, under
+/// [`ADVANCED`] only, the hidden ones.
+pub fn every_command(program: impl AsRef<OsStr>) -> (String, Vec<CommandHelp>) {
+    let program = program.as_ref();
+    let root = help_of(program, &["--help"]);
+    let subcommands = names(&root, "Commands", true);
+    let commands =
+        std::iter::once(None).chain(subcommands.into_iter().filter(|s| s != "help").map(Some));
+    let helps = commands
+        .map(|sub| {
+            let with = |flag| {
+                let args: Vec<&str> = sub.as_deref().into_iter().chain([flag]).collect();
+                help_of(program, &args)
+            };
+            let (short, advanced) = (with("--help"), with("--help-advanced"));
+            assert_eq!(short, with("-h"), "{sub:?}: -h and --help differ");
+            for text in [&short, &advanced] {
+                let bad = too_long(text);
+                assert!(bad.is_empty(), "{sub:?}:\n{}\n\n{text}", bad.join("\n"));
+                assert!(text.trim_end().ends_with(mlt_help::MORE), "{text}");
+            }
+            let hidden = names(&advanced, ADVANCED, true);
+            let shown = names(&short, ADVANCED, false);
+            assert_eq!(names(&advanced, ADVANCED, false), shown, "{sub:?}");
+            assert!(hidden.is_disjoint(&shown), "{sub:?}: {hidden:?}");
+            CommandHelp { sub, shown, hidden }
+        })
+        .collect();
+    (root, helps)
 }
 
 #[cfg(test)]
