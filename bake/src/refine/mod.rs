@@ -324,8 +324,7 @@ fn process(
     let gathered = applied(scratch, emission);
     // Eq. 17: subtract what the coarser receiver levels already represent at p_i, using the
     // links they kept (discarded links are zero in the representation).
-    // Whether any coarser level represents something here: if none does, this receiver's
-    // links are full values, not differences, and it is a base of the hierarchy like level 0.
+    // Whether any coarser level represents something here: only such receivers have budgets.
     let mut has_parent = false;
     for m in 0..level {
         has_parent |= ib.for_each_basis_value(m, x, n, |k, bk| {
@@ -355,7 +354,7 @@ fn process(
         let norm = link_norm(v);
         let kept_by_rule = if norm <= eps {
             // The base of the hierarchy (`RefinePolicy::keeps_base_link`).
-            norm > 0.0 && policy.keeps_base_link(level, j < sender_coarsest, has_parent)
+            norm > 0.0 && policy.keeps_base_link(level, j < sender_coarsest)
         } else {
             let keep = j < sender_coarsest
                 || neighbors
@@ -418,8 +417,6 @@ fn process(
         }
         links.sort_unstable_by_key(|(s, _)| *s);
     }
-    // A level-0 receiver's links below epsilon refine too (`RefinePolicy::level0_refines`).
-    refine |= policy.level0_refines && level == 0 && !links.is_empty();
     scratch.touched = touched;
     let mut kept = [0.0f64; 3];
     for (j, v) in &links {

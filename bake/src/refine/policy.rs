@@ -27,12 +27,6 @@ pub struct RefinePolicy {
     /// emission's detail (the pull-push differences: a hot spot, a shadow's edge) to the
     /// receivers that see it from afar; level 0 has no coarser level to represent it.
     pub level0_finer_links: bool,
-    /// A finer receiver that no coarser level covers (its links are full values, not Eq. 17's
-    /// differences) keeps its non-zero links to coarsest senders, as level 0 does.
-    pub unparented_bases: bool,
-    /// A level-0 receiver with any kept link refines its children, even when no link passed
-    /// Fig. 5's test, so that finer receivers correct what its wide function spreads.
-    pub level0_refines: bool,
     /// A level-1 receiver away from contacts keeps its sub-epsilon links to coarsest senders
     /// by a budget of epsilon. At a contact (see `contact_fraction`) a level-1 function
     /// straddles surfaces whose light differs and the budget overshoots between them.
@@ -73,8 +67,6 @@ impl Default for RefinePolicy {
         RefinePolicy {
             coarsest_block: true,
             level0_finer_links: true,
-            unparented_bases: true,
-            level0_refines: true,
             level1_budget: true,
             contact_budget: true,
             middle_budget: true,
@@ -107,8 +99,6 @@ impl Default for RefinePolicy {
 pub enum RefineRule {
     CoarsestBlock,
     Level0FinerLinks,
-    UnparentedBases,
-    Level0Refines,
     Level1Budget,
     ContactBudget,
     MiddleBudget,
@@ -121,11 +111,9 @@ pub enum RefineRule {
 
 impl RefineRule {
     /// Every rule, in the order of [`RefinePolicy`]'s fields.
-    pub const ALL: [RefineRule; 12] = [
+    pub const ALL: [RefineRule; 10] = [
         RefineRule::CoarsestBlock,
         RefineRule::Level0FinerLinks,
-        RefineRule::UnparentedBases,
-        RefineRule::Level0Refines,
         RefineRule::Level1Budget,
         RefineRule::ContactBudget,
         RefineRule::MiddleBudget,
@@ -141,8 +129,6 @@ impl RefineRule {
         match self {
             RefineRule::CoarsestBlock => "coarsest-block",
             RefineRule::Level0FinerLinks => "level0-finer-links",
-            RefineRule::UnparentedBases => "unparented-bases",
-            RefineRule::Level0Refines => "level0-refines",
             RefineRule::Level1Budget => "level1-budget",
             RefineRule::ContactBudget => "contact-budget",
             RefineRule::MiddleBudget => "middle-budget",
@@ -164,8 +150,6 @@ impl RefinePolicy {
             match rule {
                 RefineRule::CoarsestBlock => p.coarsest_block = false,
                 RefineRule::Level0FinerLinks => p.level0_finer_links = false,
-                RefineRule::UnparentedBases => p.unparented_bases = false,
-                RefineRule::Level0Refines => p.level0_refines = false,
                 RefineRule::Level1Budget => p.level1_budget = false,
                 RefineRule::ContactBudget => p.contact_budget = false,
                 RefineRule::MiddleBudget => p.middle_budget = false,
@@ -180,18 +164,13 @@ impl RefinePolicy {
     }
 
     /// Whether a receiver of `level` keeps its sub-epsilon link of norm > 0 to sender `j`
-    /// outright (the base of the hierarchy): level 0 (`coarsest_block` for coarsest senders,
-    /// `level0_finer_links` for finer ones), and the coarsest-sender links of a finer receiver
-    /// no coarser level covers (`unparented_bases`).
-    pub fn keeps_base_link(&self, level: usize, coarsest_sender: bool, has_parent: bool) -> bool {
-        if level == 0 {
-            if coarsest_sender {
-                self.coarsest_block
-            } else {
-                self.level0_finer_links
-            }
-        } else {
-            coarsest_sender && !has_parent && self.unparented_bases
+    /// outright, as the base of the hierarchy: level 0 only (`coarsest_block` for coarsest
+    /// senders, `level0_finer_links` for finer ones).
+    pub fn keeps_base_link(&self, level: usize, coarsest_sender: bool) -> bool {
+        match (level, coarsest_sender) {
+            (0, true) => self.coarsest_block,
+            (0, false) => self.level0_finer_links,
+            _ => false,
         }
     }
 
@@ -241,8 +220,6 @@ impl RefinePolicy {
         match rule {
             RefineRule::CoarsestBlock => self.coarsest_block,
             RefineRule::Level0FinerLinks => self.level0_finer_links,
-            RefineRule::UnparentedBases => self.unparented_bases,
-            RefineRule::Level0Refines => self.level0_refines,
             RefineRule::Level1Budget => self.level1_budget,
             RefineRule::ContactBudget => self.contact_budget,
             RefineRule::MiddleBudget => self.middle_budget,
@@ -320,12 +297,13 @@ mod tests {
     }
 
     #[test]
-    fn base_links_are_level_0_and_unparented_coarsest_links() {
+    fn base_links_are_level_0_links() {
         let p = RefinePolicy::default();
-        assert!(p.keeps_base_link(0, true, false) && p.keeps_base_link(0, false, false));
-        assert!(p.keeps_base_link(3, true, false));
-        assert!(!p.keeps_base_link(3, true, true) && !p.keeps_base_link(3, false, false));
+        assert!(p.keeps_base_link(0, true) && p.keeps_base_link(0, false));
+        assert!((1..6).all(|l| !p.keeps_base_link(l, true) && !p.keeps_base_link(l, false)));
         let off = RefinePolicy::without(&[RefineRule::Level0FinerLinks]);
-        assert!(off.keeps_base_link(0, true, false) && !off.keeps_base_link(0, false, false));
+        assert!(off.keeps_base_link(0, true) && !off.keeps_base_link(0, false));
+        let off = RefinePolicy::without(&[RefineRule::CoarsestBlock]);
+        assert!(!off.keeps_base_link(0, true) && off.keeps_base_link(0, false));
     }
 }
