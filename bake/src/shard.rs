@@ -159,32 +159,28 @@ pub fn shard_section(
     s
 }
 
-/// Combines shard files into the contents a single bake gives. `caster` is the scene's, needed
-/// (and then required) only where the shards' bake traces the level-0 bounces
+/// Combines shard files into the contents a single bake gives. Each shard comes with the name
+/// an error calls it by (its file): a set with a shard missing, given twice, of another bake or
+/// not a shard at all is refused, naming the files and the shard indices. `caster` is the
+/// scene's, needed (and then required) only where the shards' bake traces the level-0 bounces
 /// (`--level0-paths`): those paths end in the whole of T, which no shard has.
 pub fn merge(
-    shards: Vec<BakeContents>,
+    named: Vec<(String, BakeContents)>,
     caster: Option<&dyn RayCaster>,
     obs: &dyn Observer,
 ) -> Result<BakeContents, BakeError> {
     let bad = |m: String| Err(BakeError::Merge(m));
-    let Some(first) = shards.first() else {
+    let Some((name0, first)) = named.first() else {
         return bad("no shards given".into());
     };
     let Some(s0) = &first.shard else {
-        return bad("the first file is not a shard (no TSHD section)".into());
+        return bad(format!("{name0} is not a shard (no TSHD section)"));
     };
     let count = s0.count as usize;
-    if shards.len() != count {
-        return bad(format!(
-            "{} shards given, the first says there are {count}",
-            shards.len()
-        ));
-    }
-    let mut seen = vec![false; count];
-    for c in &shards {
+    let mut holder: Vec<Option<&str>> = vec![None; count];
+    for (name, c) in &named {
         let Some(s) = &c.shard else {
-            return bad("a file is not a shard (no TSHD section)".into());
+            return bad(format!("{name} is not a shard (no TSHD section)"));
         };
         if s.count as usize != count
             || s.base_key != s0.base_key
@@ -193,17 +189,43 @@ pub fn merge(
                 != (s0.auto_bounces, s0.bounce_tolerance, s0.level0_paths)
         {
             return bad(format!(
-                "shard {}/{} belongs to another bake (input key {:016x}, expected {:016x})",
+                "{name} (shard {}/{}) belongs to another bake than {name0} (input key {:016x}, \
+                 expected {:016x})",
                 s.index, s.count, s.base_key, s0.base_key
             ));
         }
         if c.meta != first.meta || c.basis != first.basis {
-            return bad(format!("shard {}/{} has another basis", s.index, s.count));
+            return bad(format!(
+                "{name} (shard {}/{}) has another basis than {name0}",
+                s.index, s.count
+            ));
         }
-        if std::mem::replace(&mut seen[s.index as usize], true) {
-            return bad(format!("shard {}/{} is given twice", s.index, s.count));
+        let Some(slot) = holder.get_mut(s.index as usize) else {
+            return bad(format!("{name} says it is shard {}/{}", s.index, s.count));
+        };
+        if let Some(other) = slot.replace(name) {
+            return bad(format!(
+                "shard {}/{} is given twice: {other} and {name}",
+                s.index, s.count
+            ));
         }
     }
+    let missing: Vec<String> = (0..count)
+        .filter(|&i| holder[i].is_none())
+        .map(|i| format!("{i}/{count}"))
+        .collect();
+    if !missing.is_empty() {
+        return bad(format!(
+            "{} shards given, {count} needed: shard {} missing (bake each with --shard I/{count})",
+            named.len(),
+            missing.join(", ")
+        ));
+    }
+    let shards: Vec<BakeContents> = named.into_iter().map(|(_, c)| c).collect();
+    let first = &shards[0];
+    let Some(s0) = &first.shard else {
+        return bad("the first file is not a shard (no TSHD section)".into());
+    };
     let ib = &first.basis;
     let levels = ib.levels();
     // T: every owned row, in receiver order (levels are contiguous index ranges, so this is

@@ -405,8 +405,12 @@ fn merged_shards_equal_the_single_bake_for_one_two_and_three_shards() {
         .output()
         .unwrap();
     assert!(!r.status.success());
-    assert!(String::from_utf8_lossy(&r.stderr).contains("1 shards given"));
+    // One line that names the missing shard, also where a farm sets RUST_BACKTRACE.
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(err.contains("shard 1/2 missing"), "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
     let r = bake()
+        .env("RUST_BACKTRACE", "1")
         .arg("merge")
         .arg(d.join("s0of2.mlt"))
         .arg(d.join("s0of2.mlt"))
@@ -414,7 +418,13 @@ fn merged_shards_equal_the_single_bake_for_one_two_and_three_shards() {
         .arg(d.join("x.mlt"))
         .output()
         .unwrap();
-    assert!(String::from_utf8_lossy(&r.stderr).contains("twice"));
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(
+        err.contains("shard 0/2 is given twice") && err.contains("s0of2.mlt"),
+        "{err}"
+    );
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(!d.join("x.mlt").exists());
     let r = bake()
         .args(["builtin:cornell", "--shard", "3/3", "-o"])
         .arg(d.join("x.mlt"))

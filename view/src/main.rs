@@ -16,8 +16,8 @@
 mod cmd;
 
 use std::ffi::OsString;
+use std::process::ExitCode;
 
-use anyhow::Result;
 use clap::{CommandFactory, Parser, Subcommand};
 
 use mlt_help as help;
@@ -97,7 +97,7 @@ fn device_select_off(var: impl Fn(&str) -> Option<OsString>) -> bool {
     unset("XDG_RUNTIME_DIR") && unset("MESA_VK_DEVICE_SELECT") && var("NODEVICE_SELECT").is_none()
 }
 
-fn main() -> Result<()> {
+fn main() -> ExitCode {
     if device_select_off(|k| std::env::var_os(k)) {
         // Sound: the first statement of `main`, before any other thread exists that could
         // read the environment while it changes.
@@ -107,7 +107,7 @@ fn main() -> Result<()> {
         help::command(Cli::command()),
         with_default_command(std::env::args_os().collect()),
     );
-    match &cli.command {
+    help::exit_status(match &cli.command {
         Command::Open(a) => cmd::open::run(a),
         Command::Render(a) => cmd::render::run(a),
         Command::Probe(a) => cmd::probe::run(a),
@@ -115,7 +115,7 @@ fn main() -> Result<()> {
         Command::Reference(a) => cmd::reference::run(a),
         Command::Compare(a) => cmd::compare::run(a),
         Command::Flat(a) => cmd::flat::run(a),
-    }
+    })
 }
 
 #[cfg(test)]

@@ -4,9 +4,12 @@
 //! Those options are hidden (`#[arg(hide = true)]`), so that `--help` lists what a user needs;
 //! `--help-advanced`, on the command and on each subcommand, prints the same help with the
 //! hidden options shown under [`ADVANCED`]. Both binaries build their clap command through
-//! [`command`] and parse with [`parse`].
+//! [`command`], parse with [`parse`] and end with [`exit_status`], which prints an error as one
+//! line.
 
 use std::ffi::OsString;
+use std::fmt::Display;
+use std::process::ExitCode;
 
 use clap::{Arg, ArgAction, Command, FromArgMatches};
 
@@ -16,6 +19,22 @@ pub const ADVANCED: &str = "Advanced (tuning and diagnostics)";
 pub const MORE: &str = "More on each option: docs/design.md#options-explained";
 /// The help is wrapped at the terminal's width, at most this many columns.
 pub const MAX_WIDTH: usize = 100;
+
+/// The exit status of a command that returned `result`: success, or 1 after printing the error
+/// and its causes on one line (`error: what: why`, with `{:#}`, the alternate form that anyhow
+/// and most error types give their chain in). A `main` returning `Result` would print the error's
+/// `Debug` form instead, which for anyhow adds a backtrace when `RUST_BACKTRACE` is set, as it
+/// often is on build farms: a shard's log should say what failed and where in one readable line.
+/// A panic keeps Rust's own message (and its backtrace where asked for).
+pub fn exit_status<E: Display>(result: Result<(), E>) -> ExitCode {
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
 
 /// `command` with `--help-advanced` on it and on every subcommand, and [`MORE`] at the end of
 /// each one's help, wrapped at most at [`MAX_WIDTH`].

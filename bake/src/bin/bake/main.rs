@@ -9,21 +9,22 @@ mod cli;
 mod commands;
 mod progress;
 
-use anyhow::Result;
+use std::process::ExitCode;
+
 use clap::CommandFactory;
 
 use cli::{Cli, Command};
 
-fn main() -> Result<()> {
+fn main() -> ExitCode {
     let cli: Cli = mlt_help::parse(
         mlt_help::command(Cli::command()),
         std::env::args_os().collect(),
     );
-    match cli.command {
+    mlt_help::exit_status(match cli.command {
         Some(Command::Merge(args)) => commands::merge::run(&args),
         Some(Command::Batch(args)) => commands::batch::run(&args),
         Some(Command::Info(args)) => commands::info::run(&args),
         Some(Command::Stats(args)) => commands::stats::run(&args),
         None => commands::bake::run(cli.bake),
-    }
+    })
 }

@@ -19,13 +19,14 @@ pub fn run(args: &MergeArgs) -> Result<()> {
     let mut contents = Vec::new();
     for s in shards {
         let f = BakedFile::open(s).with_context(|| format!("opening {}", s.display()))?;
-        contents.push(
+        contents.push((
+            s.display().to_string(),
             f.contents()
                 .with_context(|| format!("reading {}", s.display()))?,
-        );
+        ));
     }
     let caster = match (scene, contents.first()) {
-        (Some(spec), Some(first)) => {
+        (Some(spec), Some((_, first))) => {
             let scene =
                 mlt_scenes::load_scene(spec).with_context(|| format!("loading scene {spec}"))?;
             let recorded = &first.meta.scene;
