@@ -221,11 +221,7 @@ pub fn merge(
             missing.join(", ")
         ));
     }
-    let shards: Vec<BakeContents> = named.into_iter().map(|(_, c)| c).collect();
-    let first = &shards[0];
-    let Some(s0) = &first.shard else {
-        return bad("the first file is not a shard (no TSHD section)".into());
-    };
+    let shards: Vec<&BakeContents> = named.iter().map(|(_, c)| c).collect();
     let ib = &first.basis;
     let levels = ib.levels();
     // T: every owned row, in receiver order (levels are contiguous index ranges, so this is
