@@ -13,9 +13,11 @@ if [ ! -d "$shared/scenes" ]; then
     echo "setup: warning: $shared/scenes not found; tests that read the shared scenes will fail (set MLT_SHARED)" >&2
 fi
 # The viewer renders with wgpu on Vulkan. Without a GPU, Mesa's software driver (lavapipe)
-# serves, headless and under Xvfb; the window tests need xvfb. Installed only when missing.
+# serves, headless and under Xvfb; the window tests need xvfb. The check of the Kubernetes
+# manifests (scripts/farm/k8s/check.sh) reads them with Python's yaml and fills them with
+# envsubst. Installed only when missing.
 need=()
-for pkg in mesa-vulkan-drivers libvulkan1 xvfb xauth; do
+for pkg in mesa-vulkan-drivers libvulkan1 xvfb xauth python3-yaml gettext-base; do
     dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || need+=("$pkg")
 done
 if [ ${#need[@]} -gt 0 ]; then

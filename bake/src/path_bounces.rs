@@ -370,7 +370,7 @@ mod tests {
                     .collect::<std::collections::BTreeMap<_, _>>()
                     .into_iter()
                     .collect();
-                t.push_row(k, &links, 0, [0.0; LINK_DIM]);
+                t.push_row(k, &links, (0, 0), [0.0; LINK_DIM]);
             }
             let mut pw = PathWeights::new(40);
             for k in (0..40u32).rev().filter(|k| k % 8 != 3).take(25) {
@@ -432,7 +432,7 @@ mod tests {
             );
             s.touched.sort_unstable();
             let links: Vec<_> = s.touched.iter().map(|&j| (j, *s.get(j))).collect();
-            t.push_row(k as u32, &links, 0, [0.0; LINK_DIM]);
+            t.push_row(k as u32, &links, (0, 0), [0.0; LINK_DIM]);
         }
         t
     }

@@ -319,7 +319,6 @@ fn transport_stage(
             key,
             transport_params,
             policy,
-            &refine,
         ));
         file_key = mix64(key ^ mix64(((index as u64) << 32) | count as u64));
     } else if !opts.basis_only {

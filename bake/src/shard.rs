@@ -104,8 +104,8 @@ pub fn needed(ib: &IndexedBasis, owner: &[u32], index: u32) -> Vec<bool> {
     need
 }
 
-/// Packs the owned rows of a shard's T.
-#[allow(clippy::too_many_arguments)]
+/// Packs the owned rows of a shard's T (with their rays and unsupported hits as the gathers
+/// counted them, so that the merged totals are a single bake's).
 pub fn shard_section(
     ib: &IndexedBasis,
     t: &ReceiverLinks,
@@ -114,10 +114,8 @@ pub fn shard_section(
     base_key: u64,
     params: mlt_format::meta::TransportParams,
     policy: BouncePolicy,
-    refine: &crate::refine::RefinePolicy,
 ) -> ShardSection {
     let levels = ib.levels();
-    let gather_rays = params.gather_rays;
     let mut s = ShardSection {
         base_key,
         index,
@@ -146,7 +144,7 @@ pub fn shard_section(
         let l = ib.basis.level_of(r as usize);
         s.receivers_refined[l] += 1;
         s.t_links_per_level[l] += (e - a) as u64;
-        s.rays += refine.gather_rays_at(l, gather_rays) as u64;
+        s.rays += t.rays[row];
         s.unsupported_hits += t.unsupported[row];
         s.rows.push(r);
         s.row_gathered.extend_from_slice(&t.gathered[row]);
@@ -258,7 +256,7 @@ pub fn merge(
         // Per-row unsupported counts are only needed by shards; the totals are in rstats.
         let mut gathered = [0.0f32; LINK_DIM];
         gathered.copy_from_slice(&s.row_gathered[LINK_DIM * row..LINK_DIM * (row + 1)]);
-        t.push_row(r, &links, 0, gathered);
+        t.push_row(r, &links, (0, 0), gathered);
     }
     let policy = BouncePolicy {
         auto: s0.auto_bounces,

@@ -51,6 +51,9 @@ pub struct ReceiverLinks {
     pub values: Vec<[f32; LINK_DIM]>,
     /// Per row: gather hits where a sender level had no support.
     pub unsupported: Vec<u64>,
+    /// Per row: the visibility rays its gather cast (the refinement's budget rules give
+    /// receivers different counts), so that a shard's total is that of its own rows.
+    pub rays: Vec<u64>,
     /// Per row: the single-bounce vector irradiance that its gather found under the
     /// representative emission, before Eq. 17 and the keep rules (the reference of
     /// `drop_estimate`).
@@ -87,16 +90,18 @@ impl ReceiverLinks {
         }
     }
 
-    /// Appends the row of `receiver`.
+    /// Appends the row of `receiver`, whose gather cast `rays` visibility rays and met
+    /// `unsupported` hits without sender support.
     pub fn push_row(
         &mut self,
         receiver: u32,
         links: &[(u32, [f32; LINK_DIM])],
-        unsupported: u64,
+        (rays, unsupported): (u64, u64),
         gathered: [f32; LINK_DIM],
     ) {
         self.row_of[receiver as usize] = self.rows.len() as u32;
         self.rows.push(receiver);
+        self.rays.push(rays);
         self.unsupported.push(unsupported);
         self.gathered.push(gathered);
         for (s, v) in links {
@@ -255,7 +260,12 @@ pub fn refine(
                 }
                 stats.kept_mass[c] += area * p.kept[c];
             }
-            t.push_row(i, &p.links, p.counts.unsupported, p.gathered);
+            t.push_row(
+                i,
+                &p.links,
+                (p.counts.rays, p.counts.unsupported),
+                p.gathered,
+            );
             if refined {
                 next.extend_from_slice(children.row(i as usize));
             }
