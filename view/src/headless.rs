@@ -35,7 +35,14 @@ pub struct Timings {
     /// Sub-pixel samples per pixel of the images ([`box_filtered`]; not of the timed frames).
     pub spp: u32,
     pub threads: usize,
-    /// CPU relighting, milliseconds (medians over frames).
+    /// Where the relighting after the direct light ran: "cpu" or "gpu" (`--relight`).
+    pub relight: &'static str,
+    /// How the relighting's stages in `cpu_median_ms` were timed (with `relight` "gpu": the
+    /// direct light by the CPU's wall clock, the GPU's stages by the clock named here; the
+    /// GPU's flattening is then the relighting's `flatten`, not `gpu_median_ms.flatten`).
+    pub relight_clock: &'static str,
+    /// The relighting's stages, milliseconds (medians over frames): on the CPU, or with
+    /// `relight` "gpu" the direct light on the CPU and the GPU's stages (`relight_clock`).
     pub cpu_median_ms: CpuMedians,
     /// GPU passes, wall-clock milliseconds with a wait after each pass (medians). On a
     /// software rasteriser these measure the CPU that emulates the GPU.
@@ -209,6 +216,8 @@ pub fn render(
         height: camera.height,
         spp: spp.max(1),
         threads: rayon::current_num_threads(),
+        relight: "cpu",
+        relight_clock: "CPU wall clock per stage",
         cpu_median_ms,
         gpu_median_ms,
         splatted_points: gpu_times.last().map(|t| t.splatted_points).unwrap_or(0),

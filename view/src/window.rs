@@ -15,7 +15,7 @@ use std::time::Instant;
 use anyhow::{anyhow, bail, Context, Result};
 use glam::{Quat, Vec3};
 use mlt_format::IndexedBasis;
-use mlt_relight::{Light, Relight, StageTimes};
+use mlt_relight::{CpuRelighter, Light, Relight, StageTimes};
 use mlt_scenes::Scene;
 use winit::application::ApplicationHandler;
 use winit::event::{ElementState, MouseButton, WindowEvent};
@@ -26,16 +26,42 @@ use winit::window::{Window, WindowId};
 use crate::camera::Camera;
 use crate::frame::{FrameDriver, Redraw};
 use crate::gpu::mesh::GpuMesh;
-use crate::gpu::{Gpu, Renderer, ViewMode};
+use crate::gpu::{BoundGpuRelighter, Gpu, GpuRelighter, Renderer, ViewMode};
 use crate::headless::{light_on_path, median};
 use crate::images::{luminance, ToneMap};
 
+/// Where the window's relighting runs.
+pub enum Relighting<'a, 'b> {
+    /// On the CPU; with [`WindowSetup::gpu_relight`] the window moves it to the GPU once its
+    /// device is up.
+    Cpu(&'a mut CpuRelighter<'b>),
+    /// On the GPU, from this CPU relighter's direct light and operators.
+    Gpu(Box<GpuRelighter<'a, 'b>>),
+    /// Only while the window moves the relighter from the CPU to the GPU.
+    Moving,
+}
+
+impl Relighting<'_, '_> {
+    fn flat_basis(&self) -> Option<&mlt_format::flat_basis::FlatBasis> {
+        match self {
+            Relighting::Cpu(c) => Some(c.flat_basis()),
+            Relighting::Gpu(g) => Some(g.flat_basis()),
+            Relighting::Moving => None,
+        }
+    }
+}
+
 /// What the window starts from.
-pub struct WindowSetup<'a> {
+pub struct WindowSetup<'a, 'b> {
     pub title: String,
     pub scene: &'a Scene,
     pub ib: &'a IndexedBasis,
-    pub relighter: &'a mut dyn Relight,
+    pub relighter: Relighting<'a, 'b>,
+    /// Relight on the GPU after the direct light ([`GpuRelighter`]): `Some(true)`, `Some(false)`,
+    /// or `None` for "unless the adapter is a software rasteriser".
+    pub gpu_relight: Option<bool>,
+    /// Sum the splats in 16-bit floats.
+    pub half_splat: bool,
     pub camera: Camera,
     pub light: Light,
     pub bounds: (Vec3, Vec3),
@@ -53,6 +79,9 @@ pub struct WindowSetup<'a> {
     pub moving_light: Option<f32>,
 }
 
+/// Seconds between two measurements of the tone map while the view changes.
+const TONE_INTERVAL_S: f64 = 0.25;
+
 /// Frames a turn of [`WindowSetup::moving_light`].
 const LIGHT_PATH_FRAMES: u32 = 60;
 
@@ -63,7 +92,7 @@ pub fn display_available() -> bool {
 }
 
 /// Opens the window and runs until it is closed.
-pub fn run(setup: WindowSetup<'_>) -> Result<()> {
+pub fn run(setup: WindowSetup<'_, '_>) -> Result<()> {
     if !display_available() {
         bail!(
             "no display: DISPLAY is not set, so no window can open. Render to files instead with \
@@ -90,8 +119,8 @@ pub fn run(setup: WindowSetup<'_>) -> Result<()> {
     }
 }
 
-struct App<'a> {
-    setup: WindowSetup<'a>,
+struct App<'a, 'b> {
+    setup: WindowSetup<'a, 'b>,
     start_camera: Camera,
     start_light: Light,
     state: Option<State>,
@@ -116,6 +145,10 @@ struct State {
     cursor: (f64, f64),
     tone: ToneMap,
     tone_dirty: bool,
+    /// When the tone map was last measured: while the view changes it is measured again at
+    /// most every [`TONE_INTERVAL_S`], because measuring reads the image back and so waits for
+    /// the GPU, which would keep the CPU's relighting from overlapping the GPU's passes.
+    tone_measured: Option<Instant>,
     last_tick: Instant,
     frame_times: Vec<f64>,
     /// Every frame's time, for the median printed when the window closes by itself.
@@ -127,7 +160,7 @@ struct State {
     scale: f32,
 }
 
-impl App<'_> {
+impl App<'_, '_> {
     fn init(&mut self, event_loop: &ActiveEventLoop) -> Result<State> {
         let cam = self.setup.camera;
         let attrs = Window::default_attributes()
@@ -172,18 +205,36 @@ impl App<'_> {
         };
         surface.configure(&gpu.device, &config);
         let mesh = GpuMesh::from_scene(self.setup.scene);
-        let fb = self.setup.relighter.flat_basis();
+        let fb = self
+            .setup
+            .relighter
+            .flat_basis()
+            .context("the relighter is being moved")?;
         let hier = &self.setup.ib.basis;
         let mut renderer = Renderer::for_flat(&gpu, &mesh, fb, hier, self.setup.shadow_res)?;
+        renderer.set_half_precision_splat(&gpu, self.setup.half_splat);
         let flat = fb.ib.clone();
-        if self.setup.gpu_flatten.unwrap_or(!gpu.is_software()) {
-            FrameDriver {
-                gpu: &gpu,
-                renderer: &mut renderer,
-                relighter: &mut *self.setup.relighter,
-                ib: &flat,
+        let on_gpu = self.setup.gpu_relight.unwrap_or(!gpu.is_software());
+        match std::mem::replace(&mut self.setup.relighter, Relighting::Moving) {
+            Relighting::Cpu(cpu) if on_gpu => {
+                GpuRelighter::supports(cpu).map_err(|e| anyhow!("{e}"))?;
+                let g = GpuRelighter::new(&gpu, cpu, Some(renderer.coefficient_buffer()))
+                    .context("uploading the relighting to the GPU (or use --relight cpu)")?;
+                self.setup.relighter = Relighting::Gpu(Box::new(g));
             }
-            .flatten_on_gpu()?;
+            Relighting::Cpu(cpu) => {
+                if self.setup.gpu_flatten.unwrap_or(!gpu.is_software()) {
+                    FrameDriver {
+                        gpu: &gpu,
+                        renderer: &mut renderer,
+                        relighter: &mut *cpu,
+                        ib: &flat,
+                    }
+                    .flatten_on_gpu()?;
+                }
+                self.setup.relighter = Relighting::Cpu(cpu);
+            }
+            other => self.setup.relighter = other,
         }
         let mut camera = cam;
         camera.width = config.width;
@@ -210,6 +261,7 @@ impl App<'_> {
                 white: 1.0,
             },
             tone_dirty: true,
+            tone_measured: None,
             last_tick: Instant::now(),
             frame_times: Vec::new(),
             all_frame_times: Vec::new(),
@@ -238,10 +290,20 @@ impl App<'_> {
             s.light = light_on_path(&self.setup.light, radius, s.frames, LIGHT_PATH_FRAMES);
         }
 
+        let mut bound = None;
+        let relighter: &mut dyn Relight = match &mut self.setup.relighter {
+            Relighting::Cpu(c) => &mut **c,
+            Relighting::Gpu(g) => bound.insert(BoundGpuRelighter {
+                gpu: &s.gpu,
+                relighter: g.as_mut(),
+                error: None,
+            }),
+            Relighting::Moving => bail!("the relighter is being moved"),
+        };
         let mut driver = FrameDriver {
             gpu: &s.gpu,
             renderer: &mut s.renderer,
-            relighter: &mut *self.setup.relighter,
+            relighter,
             ib: &s.flat,
         };
         let drawn = driver.draw(&s.camera, &s.light, Redraw::WhenRelit, false)?;
@@ -249,20 +311,31 @@ impl App<'_> {
         if !drawn.frame.reused {
             let frame = drawn.frame;
             s.stage = frame.times;
-            s.flat_max = max_irradiance(if frame.flat.is_empty() {
+            // The GPU relighter's coefficients stay on the GPU: the points view keeps its scale.
+            let coefficients = if frame.flat.is_empty() {
                 &frame.i
             } else {
                 &frame.flat
-            });
+            };
+            if !coefficients.is_empty() {
+                s.flat_max = max_irradiance(coefficients);
+            }
             s.tone_dirty = true;
+        }
+        if let Some(e) = bound.and_then(|b| b.error) {
+            return Err(e).context("relighting on the GPU");
         }
         if times.gbuffer_ms > 0.0 || times.cull_ms > 0.0 {
             s.tone_dirty = true;
         }
-        if s.tone_dirty {
+        let tone_due = s
+            .tone_measured
+            .is_none_or(|t| t.elapsed().as_secs_f64() >= TONE_INTERVAL_S);
+        if s.tone_dirty && tone_due {
             // Reinhard's key needs the image's log-average luminance: read the final buffer.
             s.tone = ToneMap::measure(&s.renderer.read_final(&s.gpu)?);
             s.tone_dirty = false;
+            s.tone_measured = Some(Instant::now());
         }
         let output = match s.surface.get_current_texture() {
             wgpu::CurrentSurfaceTexture::Success(t)
@@ -491,7 +564,7 @@ fn drag_to(s: &mut State, position: (f64, f64)) {
     }
 }
 
-impl App<'_> {
+impl App<'_, '_> {
     /// Saves a screenshot of every view mode as `window-MODE.png`.
     fn save_every_view(&mut self) -> Result<()> {
         for mode in ViewMode::ALL {
@@ -505,7 +578,7 @@ impl App<'_> {
     }
 }
 
-impl ApplicationHandler for App<'_> {
+impl ApplicationHandler for App<'_, '_> {
     fn resumed(&mut self, event_loop: &ActiveEventLoop) {
         if self.state.is_some() {
             return;

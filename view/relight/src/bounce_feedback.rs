@@ -68,6 +68,18 @@ pub struct BounceFeedbackOp {
     weights: Vec<f32>,
 }
 
+/// The arrays of `R` ([`BounceFeedbackOp::parts`]): the sender points' normals, and per sender
+/// point `s` the entries `offsets[s]..offsets[s + 1]` of `columns` (receiver points) and
+/// `weights`; [`BounceFeedbackOp::emission`] is `n_s . sum_e weights[e] v[columns[e]]` per
+/// channel, then pull-pushed.
+#[derive(Clone, Copy, Debug)]
+pub struct ReconstructionParts<'a> {
+    pub normals: &'a [[f32; 3]],
+    pub offsets: &'a [u32],
+    pub columns: &'a [u32],
+    pub weights: &'a [f32],
+}
+
 impl BounceFeedbackOp {
     /// Precomputes `R` at the points of the coarsest `sender_levels` levels of `ib`, over the
     /// receivers with links in validated `links` (whose receivers are `ib`'s points). In
@@ -110,6 +122,16 @@ impl BounceFeedbackOp {
             offsets,
             columns,
             weights,
+        }
+    }
+
+    /// `R`'s arrays, for applying it elsewhere (the viewer's GPU compute passes).
+    pub fn parts(&self) -> ReconstructionParts<'_> {
+        ReconstructionParts {
+            normals: &self.normals,
+            offsets: &self.offsets,
+            columns: &self.columns,
+            weights: &self.weights,
         }
     }
 

@@ -402,6 +402,22 @@ impl<'a> CpuRelighter<'a> {
         self.fine_prev = None;
     }
 
+    /// The precomputed pull-push of step 2 (also the fine bounces' emission's).
+    pub fn pull_push_op(&self) -> &PullPushOp {
+        &self.pull_push
+    }
+
+    /// The reconstruction at the sender points that the fine bounces' emission and the
+    /// bounce-light feedback use.
+    pub fn feedback_op(&self) -> &BounceFeedbackOp {
+        &self.feedback
+    }
+
+    /// The basis and the links this relighter was built on.
+    pub fn basis_and_links(&self) -> (&IndexedBasis, &ArchivedLinks) {
+        (self.ib, self.links)
+    }
+
     /// The precomputed flattening operator (absent only when too large for 32-bit offsets).
     pub fn flatten_op(&self) -> Option<&FlattenOp> {
         self.flatten_op.as_ref()

@@ -37,7 +37,7 @@ pub mod relight;
 pub mod view_cull;
 pub use mlt_format::support_average;
 
-pub use bounce_feedback::BounceFeedbackOp;
+pub use bounce_feedback::{BounceFeedbackOp, ReconstructionParts};
 pub use cpu::{CpuRelighter, FineEmission, LoadStats};
 pub use error::RelightError;
 pub use fine_bounce::FineBounceOp;
@@ -46,8 +46,8 @@ pub use flatten_op::{
 };
 pub use frustum::Frustum;
 pub use light::{Light, LightError};
-pub use pull_push_op::PullPushOp;
-pub use receiver_links::ReceiverLinks;
+pub use pull_push_op::{PullPushOp, PullPushParts};
+pub use receiver_links::{ReceiverLinks, TransposedLinks};
 pub use relight::{Frame, Relight, StageTimes};
 pub use support_average::SupportAverage;
 pub use view_cull::{FlatCulling, ViewMasks};

@@ -37,6 +37,31 @@ pub struct PullPushOp {
     report: ProjectionReport,
 }
 
+/// The arrays of a [`PullPushOp`], borrowed ([`PullPushOp::parts`]): on `dim` floats per point,
+/// the pull sets each parent `pull_parents[p]` (level by level, from the second finest level
+/// up: a level's parents read its children's pulled values) to
+/// `sum_e pull_weights[e] values[pull_children[e]] / pull_den[p]` over `e in
+/// pull_offsets[p]..pull_offsets[p + 1]`; then the push (Eq. 7), level by level from level 1
+/// down to the finest, subtracts from each point `push_points[s]` the sum over its segments `s`
+/// (consecutive, one per supported coarser level) of `push_inv[s] * sum_e push_weights[e]
+/// values[push_ids[e]]` over `e in push_offsets[s]..push_offsets[s + 1]`, the coarser levels'
+/// values being already pushed.
+#[derive(Clone, Copy, Debug)]
+pub struct PullPushParts<'a> {
+    /// Points covered (those of the coarsest levels the operator was built on).
+    pub points: usize,
+    pub pull_parents: &'a [u32],
+    pub pull_offsets: &'a [u32],
+    pub pull_den: &'a [f32],
+    pub pull_children: &'a [u32],
+    pub pull_weights: &'a [f32],
+    pub push_points: &'a [u32],
+    pub push_inv: &'a [f32],
+    pub push_offsets: &'a [u32],
+    pub push_ids: &'a [u32],
+    pub push_weights: &'a [f32],
+}
+
 impl PullPushOp {
     /// Precomputes `pull_push_levels` on the coarsest `levels` levels of `ib`.
     pub fn build(ib: &IndexedBasis, levels: usize) -> PullPushOp {
@@ -116,6 +141,24 @@ impl PullPushOp {
             + self.push_offsets.len()
             + self.push_ids.len()
             + self.push_weights.len())
+    }
+
+    /// The precomputed arrays, for applying the projection elsewhere (the viewer's GPU compute
+    /// passes): see [`PullPushParts`].
+    pub fn parts(&self) -> PullPushParts<'_> {
+        PullPushParts {
+            points: self.points,
+            pull_parents: &self.pull_parents,
+            pull_offsets: &self.pull_offsets,
+            pull_den: &self.pull_den,
+            pull_children: &self.pull_children,
+            pull_weights: &self.pull_weights,
+            push_points: &self.push_points,
+            push_inv: &self.push_inv,
+            push_offsets: &self.push_offsets,
+            push_ids: &self.push_ids,
+            push_weights: &self.push_weights,
+        }
     }
 
     /// The report `pull_push_levels` would give.

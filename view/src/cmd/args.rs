@@ -3,6 +3,7 @@
 
 use std::path::PathBuf;
 
+use clap::builder::TypedValueParser;
 use clap::{Args, ValueEnum};
 use glam::Vec3;
 use mlt_format::flat_basis::{FlatRule, FLAT_NORMAL_POWER};
@@ -214,16 +215,24 @@ fn parse_flat_rule(s: &str) -> Result<FlatRule, String> {
 /// How the GPU renders.
 #[derive(Args, Clone, Debug)]
 pub struct GpuArgs {
+    /// Where the relighting runs: gpu, cpu, or auto (the GPU unless it is a software one).
+    #[arg(long, value_enum, value_name = "auto|cpu|gpu", hide_possible_values = true,
+          default_value_t = FlattenOn::Auto)]
+    pub relight: FlattenOn,
     /// Where flattening runs: gpu, cpu, or auto (the GPU unless it is a software one).
     #[arg(long, value_enum, value_name = "auto|cpu|gpu", hide_possible_values = true,
           default_value_t = FlattenOn::Auto, hide = true)]
     pub flatten: FlattenOn,
+    /// Bits of the floats the splats are summed in: 32, or 16 (less traffic, small error).
+    #[arg(long, value_name = "16|32", default_value_t = 32,
+          value_parser = clap::builder::PossibleValuesParser::new(["16", "32"]).map(|s| s.parse::<u32>().unwrap_or(32)))]
+    pub splat_bits: u32,
     /// Shadow-map resolution of the direct light, in pixels.
     #[arg(long, value_name = "PX", default_value_t = 1024, hide = true)]
     pub shadow_res: u32,
 }
 
-/// Where flattening runs.
+/// Where flattening (`--flatten`) or the relighting (`--relight`) runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum FlattenOn {
     Auto,
@@ -241,7 +250,7 @@ impl FlattenOn {
         }
     }
 
-    /// Whether flattening runs on `gpu`.
+    /// Whether it runs on `gpu`.
     pub fn on_gpu(self, gpu: &Gpu) -> bool {
         self.choice().unwrap_or(!gpu.is_software())
     }

@@ -14,7 +14,7 @@ use clap::Args;
 use mlt_relight::{LoadStats, Relight};
 use mlt_view::frame::FrameDriver;
 use mlt_view::gpu::mesh::GpuMesh;
-use mlt_view::gpu::{Gpu, Renderer};
+use mlt_view::gpu::{BoundGpuRelighter, Gpu, GpuRelighter, Renderer};
 use mlt_view::headless::{self, Timings};
 use mlt_view::oracle::{oracle, OracleRelighter};
 use mlt_view::reference::{render_reference, write_reference, ReferenceOptions};
@@ -92,30 +92,69 @@ fn images(args: &RenderArgs, v: &mut Viewing<'_>) -> Result<Timings> {
     let fb = v.relighter.flat_basis();
     let mut renderer = Renderer::for_flat(&gpu, &mesh, fb, &v.ib.basis, args.gpu.shadow_res)
         .context("setting up the renderer")?;
+    renderer.set_half_precision_splat(&gpu, args.gpu.splat_bits == 16);
     let flat = fb.ib.clone();
     let path_radius = v.path_radius();
-    let mut driver = FrameDriver {
-        gpu: &gpu,
-        renderer: &mut renderer,
-        relighter: &mut v.relighter,
-        ib: &flat,
-    };
-    if args.gpu.flatten.on_gpu(&gpu) {
-        driver
-            .flatten_on_gpu()
-            .context("uploading the flattening operator")?;
-    }
     let frames = args.frames.unwrap_or(1);
-    let (buffers, mut timings) = headless::render(
-        &mut driver,
-        &v.camera,
-        &v.light,
-        frames,
-        args.spp,
-        path_radius,
-    )
+    let relight_on_gpu = args.gpu.relight.on_gpu(&gpu);
+    let mut clock = "";
+    let (buffers, mut timings) = if relight_on_gpu {
+        // The relighting's compute passes write the flat coefficients the splatting reads.
+        let mut relighter =
+            GpuRelighter::new(&gpu, &v.relighter, Some(renderer.coefficient_buffer()))
+                .context("uploading the relighting to the GPU")?;
+        relighter.timed = true;
+        clock = relighter.clock();
+        let mut bound = BoundGpuRelighter {
+            gpu: &gpu,
+            relighter: &mut relighter,
+            error: None,
+        };
+        let mut driver = FrameDriver {
+            gpu: &gpu,
+            renderer: &mut renderer,
+            relighter: &mut bound,
+            ib: &flat,
+        };
+        let out = headless::render(
+            &mut driver,
+            &v.camera,
+            &v.light,
+            frames,
+            args.spp,
+            path_radius,
+        );
+        if let Some(e) = bound.error {
+            return Err(e).context("relighting on the GPU");
+        }
+        out
+    } else {
+        let mut driver = FrameDriver {
+            gpu: &gpu,
+            renderer: &mut renderer,
+            relighter: &mut v.relighter,
+            ib: &flat,
+        };
+        if args.gpu.flatten.on_gpu(&gpu) {
+            driver
+                .flatten_on_gpu()
+                .context("uploading the flattening operator")?;
+        }
+        headless::render(
+            &mut driver,
+            &v.camera,
+            &v.light,
+            frames,
+            args.spp,
+            path_radius,
+        )
+    }
     .with_context(|| format!("rendering {}", v.path.display()))?;
     timings.load = Some(*v.relighter.load_stats());
+    if relight_on_gpu {
+        timings.relight = "gpu";
+        timings.relight_clock = clock;
+    }
     headless::write_outputs(&args.out, &buffers, &timings)?;
     Ok(timings)
 }
@@ -220,8 +259,8 @@ fn report(args: &RenderArgs, timings: &Timings, load: &LoadStats) {
         args.out.display()
     );
     eprintln!(
-        "median over {} frame(s): CPU direct {:.1} + pull-push {:.1} + S e {:.1} + flatten {:.1} = {:.1} ms; GPU passes {:.1} ms, of which flattening {:.1} ms ({} of {} basis functions splatted)",
-        timings.frames, c.direct, c.project, c.transport, c.flatten, c.total, g.total,
+        "median over {} frame(s): relighting ({}) direct {:.1} + pull-push {:.1} + S e {:.1} + flatten {:.1} = {:.1} ms; GPU passes {:.1} ms, of which flattening {:.1} ms ({} of {} basis functions splatted)",
+        timings.frames, timings.relight, c.direct, c.project, c.transport, c.flatten, c.total, g.total,
         g.flatten, timings.splatted_points, timings.basis_points
     );
     eprintln!(

@@ -8,10 +8,11 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::Args;
+use mlt_view::gpu::{Gpu, GpuRelighter};
 use mlt_view::headless::{light_on_path, median};
 use mlt_view::Relight;
 
-use crate::cmd::args::BakedArgs;
+use crate::cmd::args::{BakedArgs, FlattenOn};
 use crate::cmd::load::{with_viewing, Viewing};
 
 /// Times the CPU relighting stages. `--feedback-lag`, advanced elsewhere, is one of its
@@ -27,11 +28,22 @@ pub struct TimingsArgs {
     /// Write the timings (JSON) here instead of standard output.
     #[arg(long, value_name = "FILE")]
     pub timings_out: Option<PathBuf>,
+    /// Where the relighting runs: cpu, or gpu (each stage submitted alone and waited for).
+    #[arg(long, value_enum, value_name = "cpu|gpu", hide_possible_values = true,
+          default_value_t = FlattenOn::Cpu)]
+    pub relight: FlattenOn,
 }
 
 pub fn run(args: &TimingsArgs) -> Result<()> {
+    if args.relight == FlattenOn::Auto {
+        anyhow::bail!("--relight auto: view timings times one of cpu or gpu; name it");
+    }
     with_viewing(&args.baked, |mut v| {
-        let json = relight_frames(args, &mut v);
+        let json = if args.relight == FlattenOn::Gpu {
+            gpu_frames(args, &v)?
+        } else {
+            relight_frames(args, &mut v)
+        };
         match &args.timings_out {
             Some(out) => {
                 mlt_format::file::write_atomic(out, serde_json::to_string_pretty(&json)?.as_bytes())
@@ -81,6 +93,54 @@ fn camera_turn(v: &mut Viewing<'_>, light: &mlt_view::Light, steps: u32) -> serd
         "median_ms": median(ms),
         "median_flat_rows": median(rows),
     })
+}
+
+/// [`relight_frames`] with the GPU relighter: the same moving light, each stage timed alone.
+/// Every flat point's coefficients are computed (the GPU relighter does not cull to a view).
+fn gpu_frames(args: &TimingsArgs, v: &Viewing<'_>) -> Result<serde_json::Value> {
+    let gpu = Gpu::headless().context("starting the GPU")?;
+    let mut relighter = GpuRelighter::new(&gpu, &v.relighter, None)
+        .context("uploading the relighting to the GPU")?;
+    relighter.timed = true;
+    let n = args.frames.max(1);
+    let path_radius = v.path_radius();
+    let mut per_stage: [Vec<f64>; 4] = Default::default();
+    let mut rays = Vec::new();
+    for f in 0..n {
+        let l = light_on_path(&v.light, path_radius, f, n);
+        let frame = relighter
+            .relight_on(&gpu, &l)
+            .context("relighting on the GPU")?;
+        let t = frame.times;
+        for (k, ms) in [t.direct_ms, t.project_ms, t.transport_ms, t.flatten_ms]
+            .into_iter()
+            .enumerate()
+        {
+            per_stage[k].push(ms);
+        }
+        rays.push(frame.shadow_rays as f64);
+    }
+    let [d, p, s, fl] = per_stage.map(median);
+    eprintln!(
+        "median per frame over {n} frames with a moving light, relighting on {} ({}): direct (CPU) {d:.1} ms, pull-push {p:.1} ms, S e with the fine bounces {s:.1} ms, flatten {fl:.1} ms",
+        gpu.report.name, gpu.report.backend
+    );
+    Ok(serde_json::json!({
+        "file": v.path.display().to_string(),
+        "frames": n,
+        "moving_light": true,
+        "relight": "gpu",
+        "clock": format!("the direct light: CPU wall clock; the other stages: {}", relighter.clock()),
+        "threads": rayon::current_num_threads(),
+        "median_ms": {"direct": d, "project": p, "transport": s, "feedback": 0.0, "flatten": fl, "total": d + p + s + fl},
+        "median_shadow_rays_cast": median(rays),
+        "fine_bounces": v.relighter.fine_bounces,
+        "lagged_feedback": v.relighter.lagged_feedback,
+        "flat_rows": relighter.frame_flat_rows(),
+        "gpu_bytes": relighter.bytes,
+        "adapter": gpu.report,
+        "load": v.relighter.load_stats(),
+    }))
 }
 
 /// Relights the frames and returns the medians as JSON (also summed up on stderr).
@@ -143,6 +203,7 @@ fn relight_frames(args: &TimingsArgs, v: &mut Viewing<'_>) -> serde_json::Value 
         "median_flat_rows": median(flat_rows),
         "camera_turn": turn,
         "load": v.relighter.load_stats(),
-        "gpu": "not used: CPU relighting only (`view render FILE --out DIR` renders)",
+        "relight": "cpu",
+        "gpu": "not used: CPU relighting only (`--relight gpu` times the GPU's; `view render FILE --out DIR` renders)",
     })
 }

@@ -20,6 +20,9 @@ pub enum GpuError {
 /// What the renderer ran on, for timings reports.
 #[derive(Clone, Debug, Serialize)]
 pub struct AdapterReport {
+    /// Whether the device writes timestamps between commands (the relighting's stage times
+    /// then come from them, not from the wall clock).
+    pub timestamps: bool,
     pub name: String,
     pub backend: String,
     pub device_type: String,
@@ -67,6 +70,13 @@ impl Gpu {
         if float32_blend {
             required_features |= wgpu::Features::FLOAT32_BLENDABLE;
         }
+        // Timestamps between commands, for the relighting's per-stage GPU times.
+        let stamps =
+            wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::TIMESTAMP_QUERY_INSIDE_ENCODERS;
+        let timestamps = adapter.features().contains(stamps);
+        if timestamps {
+            required_features |= stamps;
+        }
         let limits = adapter.limits();
         let required_limits = wgpu::Limits {
             max_storage_buffer_binding_size: limits.max_storage_buffer_binding_size,
@@ -96,6 +106,7 @@ impl Gpu {
             driver: info.driver.clone(),
             driver_info: info.driver_info.clone(),
             float32_blend,
+            timestamps,
         };
         Ok(Gpu {
             instance,

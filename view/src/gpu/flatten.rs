@@ -181,22 +181,46 @@ impl OpBuffers {
 impl GpuFlatten {
     /// Uploads `op` (and `sharpen`, the sharpening steps after it); the passes write
     /// `LINK_DIM` floats per flat point into `output` (a storage buffer of at least that
-    /// size).
+    /// size) from the hierarchical coefficients [`GpuFlatten::encode`] uploads.
     pub fn new(
         gpu: &Gpu,
         op: &FlattenOp,
         sharpen: Option<&SharpenOp>,
         output: &wgpu::Buffer,
     ) -> Result<GpuFlatten, GpuError> {
+        Self::with_input(gpu, op, sharpen, None, output)
+    }
+
+    /// [`GpuFlatten::new`] reading the hierarchical coefficients from `input` (a storage
+    /// buffer of `LINK_DIM` floats per hierarchical point that other passes fill; then
+    /// [`GpuFlatten::encode_resident`] records the passes) instead of from an upload.
+    pub fn with_input(
+        gpu: &Gpu,
+        op: &FlattenOp,
+        sharpen: Option<&SharpenOp>,
+        input: Option<&wgpu::Buffer>,
+        output: &wgpu::Buffer,
+    ) -> Result<GpuFlatten, GpuError> {
         let device = &gpu.device;
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let hier_points = op.hier_points();
-        let hier = float_buffer(
-            gpu,
-            "hierarchical coefficients",
-            hier_points * LINK_DIM,
-            wgpu::BufferUsages::COPY_DST,
-        );
+        let hier = match input {
+            Some(b) if b.size() >= (hier_points * LINK_DIM * 4) as u64 => b.clone(),
+            Some(b) => {
+                return Err(GpuError::Validation(format!(
+                    "the flattening input holds {} bytes, {} points need {}",
+                    b.size(),
+                    hier_points,
+                    hier_points * LINK_DIM * 4
+                )))
+            }
+            None => float_buffer(
+                gpu,
+                "hierarchical coefficients",
+                hier_points * LINK_DIM,
+                wgpu::BufferUsages::COPY_DST,
+            ),
+        };
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("flatten"),
             source: wgpu::ShaderSource::Wgsl(include_str!("shaders/flatten.wgsl").into()),
@@ -209,7 +233,7 @@ impl GpuFlatten {
             compilation_options: Default::default(),
             cache: None,
         });
-        let mut bytes = hier.size();
+        let mut bytes = if input.is_some() { 0 } else { hier.size() };
         let mut stages = Vec::new();
         let flatten = OpBuffers::upload(gpu, op)?;
         bytes += flatten.bytes();
@@ -289,6 +313,12 @@ impl GpuFlatten {
         }
         gpu.queue
             .write_buffer(&self.hier, 0, bytemuck::cast_slice(&i[..n]));
+        self.encode_resident(encoder);
+    }
+
+    /// Records the passes into `encoder` over the hierarchical coefficients already in the
+    /// input buffer ([`GpuFlatten::with_input`]).
+    pub fn encode_resident(&self, encoder: &mut wgpu::CommandEncoder) {
         // One compute pass per stage: each reads what the one before wrote.
         for stage in &self.stages {
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {

@@ -7,6 +7,7 @@
 //! - [`scene_buffers`]: vertices, per-frame globals, basis points and their coefficients;
 //! - [`cull`]: frustum culling of basis functions through the R-tree's visitor;
 //! - [`flatten`]: the flattening operator as a compute pass;
+//! - [`relight`]: the relighting after the direct light as compute passes ([`GpuRelighter`]);
 //! - [`uniforms`]: camera, light and shadow-face parameters in the shaders' layout;
 //! - [`pipeline`]: the boilerplate the passes share (layouts, the pipeline helper);
 //! - [`targets`]: the image-sized render targets;
@@ -23,10 +24,12 @@ pub mod mesh;
 pub mod passes;
 pub mod pipeline;
 pub mod readback;
+pub mod relight;
 pub mod renderer;
 pub mod scene_buffers;
 pub mod targets;
 pub mod uniforms;
 
 pub use context::{Gpu, GpuError};
+pub use relight::{BoundGpuRelighter, GpuArray, GpuRelighter};
 pub use renderer::{Buffers, GBuffer, RenderTimes, Renderer, ViewMode};

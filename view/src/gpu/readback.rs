@@ -98,6 +98,25 @@ pub fn read_buffer_f32(
     })
 }
 
+/// Reads the first `count` 64-bit words of a buffer created with `COPY_SRC` (resolved timestamp
+/// queries).
+pub fn read_buffer_u64(
+    gpu: &Gpu,
+    buffer: &wgpu::Buffer,
+    count: usize,
+) -> Result<Vec<u64>, GpuError> {
+    let size = (count.max(1) * 8) as u64;
+    let copy = |encoder: &mut wgpu::CommandEncoder, staging: &wgpu::Buffer| {
+        encoder.copy_buffer_to_buffer(buffer, 0, staging, 0, size)
+    };
+    staged(gpu, size, copy, |view| {
+        view.chunks_exact(8)
+            .take(count)
+            .map(|c| u64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]))
+            .collect()
+    })
+}
+
 /// Copies into a staging buffer of `size` bytes with `copy`, waits for the copy and returns
 /// what `read` makes of the buffer's bytes.
 fn staged<T>(

@@ -170,6 +170,22 @@ impl Renderer {
         self.levels
     }
 
+    /// Sums the splats in 16-bit floats (`half`, the format every adapter blends) or, where the
+    /// adapter blends them, 32-bit ones (the default); the next frame redraws every pass.
+    pub fn set_half_precision_splat(&mut self, gpu: &Gpu, half: bool) {
+        let format = if half || !gpu.report.float32_blend {
+            wgpu::TextureFormat::Rgba16Float
+        } else {
+            wgpu::TextureFormat::Rgba32Float
+        };
+        if format != self.acc_format {
+            self.acc_format = format;
+            self.splat = SplatPass::new(&gpu.device, format);
+            self.targets = None;
+            self.invalidate();
+        }
+    }
+
     /// The accumulation format of the splat sums (`Rgba32Float` where it can be blended).
     pub fn accumulation_format(&self) -> wgpu::TextureFormat {
         self.acc_format
@@ -229,6 +245,12 @@ impl Renderer {
             ));
         };
         run_pass(gpu, "flatten", timed, &|enc| f.encode(gpu, i, enc))
+    }
+
+    /// The buffer of flat coefficients the splatting pass reads (`LINK_DIM` floats per basis
+    /// point), for a relighter that writes them on the GPU ([`super::GpuRelighter::new`]).
+    pub fn coefficient_buffer(&self) -> &wgpu::Buffer {
+        &self.scene.coefficients
     }
 
     /// Reads back the flat coefficients the splatting pass uses (for tests).

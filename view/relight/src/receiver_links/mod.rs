@@ -2,6 +2,8 @@
 //! receiver-major, copied once from the file's sender-major half floats ([`ArchivedLinks`]),
 //! so that `i = S e` is computed per receiver in parallel.
 //!
+//! - [`TransposedLinks`]: the receiver-major arrays before grouping, also what the viewer's GPU
+//!   compute pass uploads;
 //! - `weights`: the senders' weights of a product, rounded to and held as half floats;
 //! - `slots`: a link's sender slot, 16 or 32 bits;
 //! - `groups`: the nearly dense first rows, stored and summed eight at a time;
@@ -14,6 +16,7 @@ mod slots;
 mod tasks;
 #[cfg(test)]
 mod tests;
+mod transpose;
 mod weights;
 
 use mlt_format::links::{ArchivedLinks, LINK_DIM};
@@ -26,6 +29,7 @@ use kernels::row_sum;
 pub(crate) use kernels::unpack;
 use slots::Slots;
 use tasks::task_starts;
+pub use transpose::TransposedLinks;
 use weights::{SenderWeights, Weights};
 
 /// `S` receiver-major, copied once from the stored sender-major half floats (section 3.3's
@@ -88,57 +92,15 @@ impl ReceiverLinks {
         keep: impl Fn(u32, u32) -> bool,
         fill: f64,
     ) -> ReceiverLinks {
-        let receivers = links.receivers.to_native();
-        let n = receivers as usize;
-        // Per stored slot, its sender, scale and kept links `(receiver, index into values)`.
-        let mut sender_ids = Vec::new();
-        let mut scales = Vec::new();
-        let mut kept: Vec<(u32, u32, usize)> = Vec::new(); // (receiver, new slot, link index)
-        for slot in 0..links.sender_ids.len() {
-            let s = links.sender_ids[slot].to_native();
-            let (a, b) = (
-                links.offsets[slot].to_native() as usize,
-                links.offsets[slot + 1].to_native() as usize,
-            );
-            let new_slot = sender_ids.len() as u32;
-            let before = kept.len();
-            for k in a..b {
-                let r = links.receiver_ids[k].to_native();
-                if keep(s, r) {
-                    kept.push((r, new_slot, k));
-                }
-            }
-            if kept.len() > before {
-                sender_ids.push(s);
-                scales.push(links.scales[slot].to_native());
-            }
-        }
-        let mut count = vec![0u32; n + 1];
-        for &(r, _, _) in &kept {
-            count[r as usize + 1] += 1;
-        }
-        let receiver_ids: Vec<u32> = (0..n)
-            .filter(|&r| count[r + 1] > 0)
-            .map(|r| r as u32)
-            .collect();
-        // Offsets per receiver (all of them) for the fill, then compacted.
-        for r in 0..n {
-            count[r + 1] += count[r];
-        }
-        let total = kept.len();
-        let mut cursor = count.clone();
-        let mut slots = vec![0u32; total];
-        let mut values = vec![[0u16; LINK_DIM]; total];
-        // `kept` is in slot order, so each receiver's links stay in ascending sender order.
-        for &(r, slot, k) in &kept {
-            let at = cursor[r as usize] as usize;
-            cursor[r as usize] += 1;
-            slots[at] = slot;
-            let v = &links.values[k * LINK_DIM..(k + 1) * LINK_DIM];
-            values[at] = std::array::from_fn(|d| v[d].to_native());
-        }
-        let mut offsets: Vec<u32> = receiver_ids.iter().map(|&r| count[r as usize]).collect();
-        offsets.push(total as u32);
+        let TransposedLinks {
+            receivers,
+            sender_ids,
+            scales,
+            receiver_ids,
+            offsets,
+            mut slots,
+            mut values,
+        } = TransposedLinks::build(links, keep);
         let groups = Groups::build(&offsets, &slots, &values, fill);
         // The grouped rows' links are held in `groups` only.
         let grouped = offsets[groups.rows] as usize;
