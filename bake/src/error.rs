@@ -28,6 +28,12 @@ pub enum BakeError {
     NoCandidates { scene: String, viewpoint: [f32; 3] },
     #[error("the light transport does not converge: the estimated spectral radius of the bounce operator is {spectral_radius:.5}, at or too close to 1 for S = T + T^2 + ... to converge; is an albedo 1 or more?")]
     Divergent { spectral_radius: f64 },
+    #[error("{scene}: {what} has albedo {albedo:?}, not below 1 in every channel: it loses no energy, so the bounces cannot converge; lower it below 1 (real surfaces reflect at most about 0.9)")]
+    AlbedoNotBelowOne {
+        scene: String,
+        what: String,
+        albedo: [f32; 3],
+    },
     #[error("{scene}: the viewpoint {viewpoint:?} is not finite")]
     BadViewpoint { scene: String, viewpoint: [f32; 3] },
 }

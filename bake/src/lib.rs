@@ -1,6 +1,7 @@
 //! The offline bake of meshless hierarchical light transport (Lehtinen et al. 2008): scene in,
 //! basis file out. The `bake` binary is a thin command line over [`bake_scene`].
 //!
+//! - [`albedo`]: the check that refuses an albedo of 1 or more before any work;
 //! - [`candidates`]: importance particles from the viewpoint (section 2.3);
 //! - [`poisson`], [`grid`]: dart throwing in the metric of Eq. 11 with the harmonic mean
 //!   distance test; [`placement`]: the hierarchy of levels and the `R_coarse` search;
@@ -10,6 +11,7 @@
 //!   jobs ([`BakeOptions`]), and their resolution;
 //! - [`pipeline`]: everything together, with statistics; [`report`]: human-readable output.
 
+pub mod albedo;
 pub mod batch;
 pub mod camera_check;
 pub mod candidates;

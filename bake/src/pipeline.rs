@@ -164,6 +164,10 @@ pub fn bake_scene(
             ));
         }
     }
+    if !opts.basis_only {
+        // An albedo of 1 or more: refused before any work (the bounces would not converge).
+        warnings.extend(crate::albedo::check_albedo(scene)?);
+    }
     let viewpoint = scene.viewpoint;
     if !viewpoint.is_finite() {
         return Err(BakeError::BadViewpoint {
