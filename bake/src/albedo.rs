@@ -13,7 +13,8 @@ use crate::error::BakeError;
 
 /// Whether an albedo loses energy in every channel: each below 1 (a NaN does not).
 fn below_one(rgb: &[f32; 3]) -> bool {
-    rgb.iter().all(|a| a.partial_cmp(&1.0) == Some(std::cmp::Ordering::Less))
+    rgb.iter()
+        .all(|a| a.partial_cmp(&1.0) == Some(std::cmp::Ordering::Less))
 }
 
 /// Refuses `scene` when a material that a triangle uses (or the analytic sphere) has an albedo

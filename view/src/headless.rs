@@ -37,9 +37,9 @@ pub struct Timings {
     pub threads: usize,
     /// Where the relighting after the direct light ran: "cpu" or "gpu" (`--relight`).
     pub relight: &'static str,
-    /// How the relighting's stages in `cpu_median_ms` were timed (with `relight` "gpu": the
-    /// direct light by the CPU's wall clock, the GPU's stages by the clock named here; the
-    /// GPU's flattening is then the relighting's `flatten`, not `gpu_median_ms.flatten`).
+    /// How the relighting's stages in `cpu_median_ms` were timed (with `relight` "gpu": by the
+    /// clock named here, the direct light's CPU part included in `direct`; the GPU's
+    /// flattening is then the relighting's `flatten`, not `gpu_median_ms.flatten`).
     pub relight_clock: &'static str,
     /// The relighting's stages, milliseconds (medians over frames): on the CPU, or with
     /// `relight` "gpu" the direct light on the CPU and the GPU's stages (`relight_clock`).

@@ -3,8 +3,10 @@
 //! and the flat coefficients, for a moving light, exact and lagged, and the final image of two
 //! views.
 //!
-//! Tolerances. The pull-push sums the same products in the same order on both (only fused
-//! multiply-adds may differ): 1e-5 of the largest coefficient. In `S e` the CPU rounds each
+//! Tolerances. The shadow rays follow the same pattern on both, through another hierarchy of
+//! the same triangles, and the pull-push sums the same products in the same order (only fused
+//! multiply-adds may differ): `e` within 1e-3 of the largest coefficient and 1e-4 relative RMS
+//! (a ray grazing an edge may decide otherwise). In `S e` the CPU rounds each
 //! sender's weight to half-float precision (a relative change of at most 2^-11, about 4.9e-4;
 //! its mean over many senders is near zero) and skips senders below 1e-4 of the largest, which
 //! the GPU does not, and sums each row in another order (64 partial sums): the receiver and flat
@@ -102,10 +104,14 @@ fn every_stage_matches_the_cpu_relighter_for_a_moving_light_exact_and_lagged() {
                     !g.reused && g.e.is_empty() && g.i.is_empty(),
                     "the arrays stay on the GPU"
                 );
-                assert_eq!(g.shadow_rays, c.shadow_rays, "the same direct light");
+                assert!(
+                    on_gpu.direct_on_gpu(),
+                    "the box has triangles: its rays go on the GPU"
+                );
+                assert!(c.shadow_rays > 0);
                 let what = |s: &str| format!("{s}, frame {k}, lagged {lagged}");
                 let e = on_gpu.read(&gpu, GpuArray::Senders).unwrap();
-                assert_close(&what("e"), &e, &c.e, 1e-5, 1e-5);
+                assert_close(&what("e"), &e, &c.e, 1e-3, 1e-4);
                 let i = on_gpu.read(&gpu, GpuArray::Receivers).unwrap();
                 assert_close(&what("i"), &i, &c.i, 2e-3, 1e-3);
                 let flat = on_gpu.read(&gpu, GpuArray::Flat).unwrap();

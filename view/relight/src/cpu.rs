@@ -104,6 +104,16 @@ pub struct LoadStats {
     pub points_in_morton_order: bool,
 }
 
+/// The CPU's part of a GPU's step 1 ([`CpuRelighter::near_light`]).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct NearLight {
+    /// The surface nearest the light, its height and normal: the shadow rays' clearance.
+    pub clearance: Option<(f32, Vec3)>,
+    /// The sender points near the light, with their samples blended toward the support
+    /// average (before visibility).
+    pub samples: Vec<(u32, [f32; 3])>,
+}
+
 /// How the finer receivers' bounces 2 and later are emitted (step 3), for a file whose `S`
 /// computed them on the coarsest receivers only.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
@@ -411,6 +421,51 @@ impl<'a> CpuRelighter<'a> {
     /// bounce-light feedback use.
     pub fn feedback_op(&self) -> &BounceFeedbackOp {
         &self.feedback
+    }
+
+    /// What a GPU's step 1 needs from the CPU per frame for `light`, as
+    /// [`CpuRelighter::direct_stats`] uses it: the surface nearest the light (the shadow rays'
+    /// clearance: its height and normal), and the sender points within a few support radii of
+    /// the light with their samples blended toward the support average (before visibility).
+    /// Both empty when [`CpuRelighter::support_average`] is off.
+    pub fn near_light(&self, light: &Light) -> NearLight {
+        if !self.support_average {
+            return NearLight::default();
+        }
+        let b = &self.ib.basis;
+        let senders = b.level_offsets[self.sender_levels] as usize;
+        let near = (0..senders)
+            .filter(|&j| self.sample_used[j])
+            .filter(|&j| {
+                let x = Vec3::from(b.positions[j]);
+                let d = light.position - x;
+                mlt_format::support_average::near_weight(
+                    d.length(),
+                    d.dot(Vec3::from(b.normals[j])),
+                    b.radii[j],
+                ) > 0.0
+            })
+            .map(|j| (j as u32, self.support.sample(j, light).0))
+            .collect();
+        NearLight {
+            clearance: self.clearance(light),
+            samples: near,
+        }
+    }
+
+    /// Per sender point, whether step 1 samples it (the pull replaces the others).
+    pub fn sample_used(&self) -> &[bool] {
+        &self.sample_used
+    }
+
+    /// Shadow rays per sender point (step 1).
+    pub fn shadow_rays(&self) -> u32 {
+        self.shadow_rays
+    }
+
+    /// The scene's ray caster (the shadow rays').
+    pub fn caster(&self) -> &'a dyn RayCaster {
+        self.caster
     }
 
     /// The basis and the links this relighter was built on.

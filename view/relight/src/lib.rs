@@ -38,7 +38,7 @@ pub mod view_cull;
 pub use mlt_format::support_average;
 
 pub use bounce_feedback::{BounceFeedbackOp, ReconstructionParts};
-pub use cpu::{CpuRelighter, FineEmission, LoadStats};
+pub use cpu::{CpuRelighter, FineEmission, LoadStats, NearLight};
 pub use error::RelightError;
 pub use fine_bounce::FineBounceOp;
 pub use flatten_op::{

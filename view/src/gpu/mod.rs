@@ -1,6 +1,7 @@
 //! GPU rendering with wgpu (Lehtinen et al. 2008, section 4.1): a deferred renderer that
 //! splats the flat basis, composited with shadow-mapped direct light.
 //!
+//! - [`bvh`]: a bounding volume hierarchy of the triangles, for the GPU's shadow rays;
 //! - [`context`]: the device (headless or for a window), with a clear error when there is none;
 //! - [`mesh`]: the scene's triangles as GPU vertex data, grouped by material;
 //! - [`materials`]: the mesh's albedo colours and textures as bind groups;
@@ -16,6 +17,7 @@
 //! - [`renderer`]: the renderer of a scene, running the passes frame by frame;
 //! - [`readback`]: copying textures back to the CPU.
 
+pub mod bvh;
 pub mod context;
 pub mod cull;
 pub mod flatten;

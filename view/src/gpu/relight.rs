@@ -1,11 +1,14 @@
 //! Relighting with the transport resident on the GPU (section 3.3, the per-frame steps that
 //! the paper notes "could potentially be implemented on the GPU"): [`GpuRelighter`] implements
-//! [`Relight`] with wgpu compute passes that keep every per-frame array on the GPU after the
-//! direct light:
+//! [`Relight`] with wgpu compute passes that keep every per-frame array on the GPU:
 //!
-//! 1. the direct irradiance at the sender points, from [`CpuRelighter::direct_stats`] (shadow
-//!    rays with the CPU path's support averages near the light), uploaded: three floats per
-//!    sender point. Not yet on the GPU: this step stays on the CPU;
+//! 1. the direct irradiance at the sender points as [`CpuRelighter::direct_stats`] computes it:
+//!    jittered shadow rays toward a disk around the light, half first and the rest only in the
+//!    penumbra, walked through a bounding volume hierarchy of the scene's triangles
+//!    ([`super::bvh`]); the CPU supplies per frame only the light, the surface nearest it (the
+//!    rays' clearance) and the support averages of the few points within a few support radii
+//!    of it ([`CpuRelighter::near_light`]). An analytic sphere's rays are cast by the CPU and
+//!    its samples uploaded;
 //! 2. the pull-push `e = P-dagger E`, one pass per level (the pull from the second finest
 //!    level up, the push of Eq. 7 from level 1 down), from [`mlt_relight::PullPushParts`];
 //! 3. `i = S e` receiver-major over the file's half-float links uploaded once
@@ -28,6 +31,7 @@
 use std::time::Instant;
 
 use mlt_format::flat_basis::FlatBasis;
+use mlt_format::light_model::Cone;
 use mlt_format::links::LINK_DIM;
 use mlt_relight::{CpuRelighter, FineEmission, Frame, Light, Relight, StageTimes, TransposedLinks};
 use wgpu::util::DeviceExt;
@@ -37,7 +41,7 @@ use super::flatten::GpuFlatten;
 
 const WORKGROUP: u32 = 64;
 /// Timestamps a timed frame writes.
-const STAMPS: u32 = 4;
+const STAMPS: u32 = 5;
 
 /// An array the GPU relighter keeps on the GPU, readable with [`GpuRelighter::read`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -80,6 +84,7 @@ struct Kernels {
     weights: wgpu::ComputePipeline,
     transport: wgpu::ComputePipeline,
     reconstruct: wgpu::ComputePipeline,
+    direct: wgpu::ComputePipeline,
 }
 
 impl Kernels {
@@ -107,6 +112,7 @@ impl Kernels {
                 "reconstruct",
                 include_str!("shaders/relight/reconstruct.wgsl"),
             ),
+            direct: make("direct", include_str!("shaders/relight/direct.wgsl")),
         }
     }
 }
@@ -301,6 +307,151 @@ impl Projection {
     }
 }
 
+/// Step 1 on the GPU: the shadow rays through the scene's triangles, with the light's
+/// parameters and the support averages near the light written per frame.
+struct DirectPass {
+    dispatch: Dispatch,
+    /// The shader's `Params` (96 bytes), rewritten per frame.
+    params: wgpu::Buffer,
+    /// Room for one support average per sender point: `(sample, index)`.
+    near: wgpu::Buffer,
+    eps: f32,
+}
+
+impl DirectPass {
+    /// Uploads the scene's triangles as a hierarchy and the sender points; `None` when the
+    /// caster has no triangle mesh (an analytic sphere: the CPU casts its rays).
+    fn upload(
+        b: &mut Builder<'_>,
+        k: &Kernels,
+        cpu: &CpuRelighter<'_>,
+        senders: usize,
+        out: &wgpu::Buffer,
+    ) -> Result<Option<DirectPass>, GpuError> {
+        let caster = cpu.caster();
+        let Some(mesh) = caster.triangle_mesh() else {
+            return Ok(None);
+        };
+        let bvh = super::bvh::Bvh::build(&mesh.positions, &mesh.triangles);
+        let (ib, _) = cpu.basis_and_links();
+        let basis = &ib.basis;
+        let points: Vec<[f32; 4]> = (0..senders)
+            .map(|j| {
+                let p = basis.positions[j];
+                [p[0], p[1], p[2], basis.radii[j]]
+            })
+            .collect();
+        let normals: Vec<[f32; 4]> = (0..senders)
+            .map(|j| {
+                let n = basis.normals[j];
+                [n[0], n[1], n[2], basis.disk_radii[basis.level_of(j)]]
+            })
+            .collect();
+        let used: Vec<u32> = cpu.sample_used()[..senders]
+            .iter()
+            .map(|&u| u32::from(u))
+            .collect();
+        let nodes = b.storage("direct hierarchy", &bvh.nodes)?;
+        let corners = b.storage("direct triangles", &bvh.corners)?;
+        let points = b.storage("direct points", &points)?;
+        let normals = b.storage("direct normals", &normals)?;
+        let used = b.storage("direct used", &used)?;
+        let device = &b.gpu.device;
+        let near = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("direct near-light samples"),
+            size: (16 * senders.max(1)) as u64,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let params = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("direct params"),
+            size: 96,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        b.bytes += near.size() + params.size();
+        let (groups, _) = b.grid((senders as u32).div_ceil(WORKGROUP));
+        let resources: Vec<wgpu::BindingResource<'_>> = [
+            &nodes, &corners, &points, &normals, &used, &near, out, &params,
+        ]
+        .iter()
+        .map(|b| b.as_entire_binding())
+        .collect();
+        let layout = k.direct.get_bind_group_layout(0);
+        let bind_group = super::pipeline::bind_group(device, "direct", &layout, &resources);
+        Ok(Some(DirectPass {
+            dispatch: Dispatch {
+                pipeline: k.direct.clone(),
+                bind_group,
+                groups: if senders == 0 { (0, 0) } else { groups },
+            },
+            params,
+            near,
+            eps: caster.ray_epsilon(),
+        }))
+    }
+
+    /// Writes the frame's parameters for `light` (`cpu`'s rays and its near-light inputs).
+    /// Returns the support averages written.
+    fn prepare(&self, gpu: &Gpu, cpu: &CpuRelighter<'_>, light: &Light, senders: usize) -> usize {
+        let mlt_relight::NearLight {
+            clearance,
+            samples: near,
+        } = cpu.near_light(light);
+        let f = f32::to_bits;
+        let (kind, axis, cos_a, cos_b) = match light.cone {
+            Cone::None => (0.0, glam::Vec3::ZERO, 0.0, 0.0),
+            Cone::Hard { axis, cos_half } => (1.0, axis, cos_half, 0.0),
+            Cone::Smooth {
+                axis,
+                cos_inner,
+                cos_outer,
+            } => (2.0, axis, cos_inner, cos_outer),
+        };
+        let (h, nc) = clearance.unwrap_or((-1.0, glam::Vec3::ZERO));
+        let p = light.position;
+        let i = light.intensity;
+        let per_row = self.dispatch.groups.0 * WORKGROUP;
+        let words: [u32; 24] = [
+            f(p.x),
+            f(p.y),
+            f(p.z),
+            f(kind),
+            f(i[0]),
+            f(i[1]),
+            f(i[2]),
+            f(self.eps),
+            f(axis.x),
+            f(axis.y),
+            f(axis.z),
+            f(cos_a),
+            f(nc.x),
+            f(nc.y),
+            f(nc.z),
+            f(h),
+            senders as u32,
+            cpu.shadow_rays(),
+            per_row,
+            u32::from(cpu.adaptive_shadows),
+            near.len() as u32,
+            f(cos_b),
+            0,
+            0,
+        ];
+        gpu.queue
+            .write_buffer(&self.params, 0, bytemuck::cast_slice(&words));
+        if !near.is_empty() {
+            let entries: Vec<[u32; 4]> = near
+                .iter()
+                .map(|&(j, e)| [f(e[0]), f(e[1]), f(e[2]), j])
+                .collect();
+            gpu.queue
+                .write_buffer(&self.near, 0, bytemuck::cast_slice(&entries));
+        }
+        near.len()
+    }
+}
+
 /// The relighter: the CPU relighter for the direct light and the settings, the rest on the GPU.
 pub struct GpuRelighter<'r, 'a> {
     cpu: &'r CpuRelighter<'a>,
@@ -321,6 +472,8 @@ pub struct GpuRelighter<'r, 'a> {
     transport_fine: Vec<Dispatch>,
     reconstruct: Dispatch,
     flatten: GpuFlatten,
+    /// Step 1 on the GPU, where the scene has triangles.
+    direct: Option<DirectPass>,
     senders: usize,
     points: usize,
     flat_points: usize,
@@ -340,8 +493,9 @@ pub struct GpuRelighter<'r, 'a> {
     /// that the GPU runs while the CPU goes on, and [`Frame::times`] holds only the direct
     /// light's time and the recording's.
     pub timed: bool,
-    /// Four timestamps a frame (before and after the projection, after `S e`, after the
-    /// flattening) and the buffer they resolve to, where the device writes them.
+    /// Five timestamps a frame (before and after the direct light, after the projection, after
+    /// `S e`, after the flattening) and the buffer they resolve to, where the device writes
+    /// them.
     stamps: Option<(wgpu::QuerySet, wgpu::Buffer)>,
 }
 
@@ -494,6 +648,7 @@ impl<'r, 'a> GpuRelighter<'r, 'a> {
             false,
             [senders as u32, 0, 0, 0, 0, 0, 0, 0],
         );
+        let direct = DirectPass::upload(&mut b, &kernels, cpu, senders, &senders_buf)?;
         let project_e = projection.dispatches(&b, &kernels, &senders_buf);
         let project_y = projection.dispatches(&b, &kernels, &emission);
         let sharpen = cpu.sharpen_operator();
@@ -530,6 +685,7 @@ impl<'r, 'a> GpuRelighter<'r, 'a> {
             transport_fine,
             reconstruct,
             flatten,
+            direct,
             senders,
             points,
             flat_points,
@@ -544,6 +700,12 @@ impl<'r, 'a> GpuRelighter<'r, 'a> {
             timed: false,
             stamps,
         })
+    }
+
+    /// Whether step 1 (the direct light's shadow rays) runs on the GPU: where the scene has
+    /// triangles (an analytic sphere's rays are cast by the CPU).
+    pub fn direct_on_gpu(&self) -> bool {
+        self.direct.is_some()
     }
 
     /// Whether the GPU runs `cpu`'s settings and file: an error naming what it does not run
@@ -587,10 +749,11 @@ impl<'r, 'a> GpuRelighter<'r, 'a> {
         super::readback::read_buffer_f32(gpu, buffer, count)
     }
 
-    /// How [`GpuRelighter::timed`] frames time the GPU's stages.
+    /// How [`GpuRelighter::timed`] frames time the GPU's stages (the CPU's part of the direct
+    /// light, its near-light inputs, is timed by the wall clock and added to it).
     pub fn clock(&self) -> &'static str {
         if self.stamps.is_some() {
-            "GPU timestamps between the stages"
+            "GPU timestamps between the stages (the direct light's CPU part by the wall clock, added)"
         } else {
             "wall clock, each stage submitted alone and waited for"
         }
@@ -616,11 +779,16 @@ impl<'r, 'a> GpuRelighter<'r, 'a> {
         }
         let mut times = StageTimes::default();
         let t = Instant::now();
-        let (direct, shadow_rays, averaged_points) = self.cpu.direct_stats(light);
-        gpu.queue
-            .write_buffer(&self.senders_buf, 0, bytemuck::cast_slice(&direct));
+        let (shadow_rays, averaged_points) = match &self.direct {
+            Some(d) => (0, d.prepare(gpu, self.cpu, light, self.senders) as u64),
+            None => {
+                let (direct, rays, averaged) = self.cpu.direct_stats(light);
+                gpu.queue
+                    .write_buffer(&self.senders_buf, 0, bytemuck::cast_slice(&direct));
+                (rays, averaged)
+            }
+        };
         times.direct_ms = ms(t);
-
         // Step 3, as CpuRelighter::relight orders it.
         let lag = self.lagged && self.has_prev;
         self.lag_settled = !lag || self.lag_light.as_ref() == Some(light);
@@ -650,23 +818,29 @@ impl<'r, 'a> GpuRelighter<'r, 'a> {
                 enc.write_timestamp(set, k);
             }
         };
-        let t = Instant::now();
         stamp(&mut enc, 0);
+        if let Some(d) = &self.direct {
+            let t = Instant::now();
+            d.dispatch.encode(&mut enc);
+            times.direct_ms += stage_end(gpu, per_stage, &mut enc, t)?;
+        }
+        stamp(&mut enc, 1);
+        let t = Instant::now();
         for d in &self.project_e {
             d.encode(&mut enc);
         }
-        stamp(&mut enc, 1);
+        stamp(&mut enc, 2);
         times.project_ms = stage_end(gpu, per_stage, &mut enc, t)?;
         let t = Instant::now();
         enc.clear_buffer(&self.receivers_buf, 0, None);
         for d in transport {
             d.encode(&mut enc);
         }
-        stamp(&mut enc, 2);
+        stamp(&mut enc, 3);
         times.transport_ms = stage_end(gpu, per_stage, &mut enc, t)?;
         let t = Instant::now();
         self.flatten.encode_resident(&mut enc);
-        stamp(&mut enc, 3);
+        stamp(&mut enc, 4);
         times.flatten_ms = stage_end(gpu, per_stage, &mut enc, t)?;
         if let Some((set, resolved)) = stamps {
             enc.resolve_query_set(set, 0..STAMPS, resolved, 0);
@@ -676,9 +850,12 @@ impl<'r, 'a> GpuRelighter<'r, 'a> {
             let ticks = super::readback::read_buffer_u64(gpu, resolved, STAMPS as usize)?;
             let ns = f64::from(gpu.queue.get_timestamp_period());
             let ms = |a: usize, b: usize| ticks[b].saturating_sub(ticks[a]) as f64 * ns * 1e-6;
-            times.project_ms = ms(0, 1);
-            times.transport_ms = ms(1, 2);
-            times.flatten_ms = ms(2, 3);
+            if self.direct.is_some() {
+                times.direct_ms += ms(0, 1);
+            }
+            times.project_ms = ms(1, 2);
+            times.transport_ms = ms(2, 3);
+            times.flatten_ms = ms(3, 4);
         }
         if self.fine_senders {
             self.has_prev = self.lagged;
