@@ -394,42 +394,69 @@ fn window_opens_under_xvfb_and_saves_every_view() {
             ..Default::default()
         },
     );
-    // xvfb-run comes with scripts/setup.sh (Debian package xvfb).
-    let r = Command::new("xvfb-run")
-        .args(["-a", "-s", "-screen 0 640x480x24"])
-        .arg(env!("CARGO_BIN_EXE_view"))
-        .arg(&f)
-        .args([
-            "--width",
-            "96",
-            "--height",
-            "72",
-            "--exit-after-frames",
-            "3",
-        ])
-        .arg("--screenshot-dir")
-        .arg(&d)
-        .output()
-        .expect("xvfb-run (scripts/setup.sh installs it)");
-    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
-    for mode in ["final", "direct", "indirect", "level-used", "basis-points"] {
-        let img = image::open(d.join(format!("window-{mode}.png")))
-            .unwrap()
-            .to_rgb8();
-        assert_eq!(img.dimensions(), (96, 72), "{mode}");
-        let lit = img.pixels().filter(|p| p.0.iter().any(|&c| c > 10)).count();
-        assert!(lit > 96 * 72 / 4, "{mode}: only {lit} lit pixels");
-        if mode == "level-used" {
-            // The flat points come from several levels of the hierarchy (finer ones at the
-            // box's edges and contacts): the view shows more than one colour, as it did not
-            // while the renderer took the flat basis' own single level.
-            let colours: std::collections::HashSet<[u8; 3]> = img.pixels().map(|p| p.0).collect();
-            assert!(
-                colours.len() > 10,
-                "level view of {} colours",
-                colours.len()
-            );
+    // xvfb-run comes with scripts/setup.sh (Debian package xvfb). Relit on the CPU (the
+    // software driver's default) and with the GPU relighter.
+    for relight in ["cpu", "gpu"] {
+        let dir = d.join(relight);
+        std::fs::create_dir_all(&dir).unwrap();
+        let r = Command::new("xvfb-run")
+            .args(["-a", "-s", "-screen 0 640x480x24"])
+            .arg(env!("CARGO_BIN_EXE_view"))
+            .arg(&f)
+            .args([
+                "--width",
+                "96",
+                "--height",
+                "72",
+                "--exit-after-frames",
+                "3",
+                "--relight",
+                relight,
+            ])
+            .arg("--screenshot-dir")
+            .arg(&dir)
+            .output()
+            .expect("xvfb-run (scripts/setup.sh installs it)");
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        for mode in ["final", "direct", "indirect", "level-used", "basis-points"] {
+            let img = image::open(dir.join(format!("window-{mode}.png")))
+                .unwrap()
+                .to_rgb8();
+            assert_eq!(img.dimensions(), (96, 72), "{mode}");
+            let lit = img.pixels().filter(|p| p.0.iter().any(|&c| c > 10)).count();
+            assert!(lit > 96 * 72 / 4, "{relight} {mode}: only {lit} lit pixels");
+            if mode == "level-used" {
+                // The flat points come from several levels of the hierarchy (finer ones at the
+                // box's edges and contacts): the view shows more than one colour, as it did not
+                // while the renderer took the flat basis' own single level.
+                let colours: std::collections::HashSet<[u8; 3]> =
+                    img.pixels().map(|p| p.0).collect();
+                assert!(
+                    colours.len() > 10,
+                    "level view of {} colours",
+                    colours.len()
+                );
+            }
         }
+    }
+    // The two relighters' views agree (8-bit screenshots: within a level or two on average).
+    for mode in ["final", "indirect"] {
+        let png = |r: &str| {
+            image::open(d.join(r).join(format!("window-{mode}.png")))
+                .unwrap()
+                .to_rgb8()
+        };
+        let (a, b) = (png("cpu"), png("gpu"));
+        let diff: f64 = a
+            .pixels()
+            .zip(b.pixels())
+            .flat_map(|(p, q)| (0..3).map(move |c| (f64::from(p.0[c]) - f64::from(q.0[c])).abs()))
+            .sum::<f64>()
+            / (96.0 * 72.0 * 3.0);
+        assert!(
+            diff < 2.0,
+            "{mode}: CPU and GPU relighting differ by {diff} levels"
+        );
     }
 }
 

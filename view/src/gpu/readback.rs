@@ -98,6 +98,24 @@ pub fn read_buffer_f32(
     })
 }
 
+/// Reads the first `count` 32-bit unsigned words of a buffer created with `COPY_SRC`.
+pub fn read_buffer_u32(
+    gpu: &Gpu,
+    buffer: &wgpu::Buffer,
+    count: usize,
+) -> Result<Vec<u32>, GpuError> {
+    let size = (count.max(1) * 4) as u64;
+    let copy = |encoder: &mut wgpu::CommandEncoder, staging: &wgpu::Buffer| {
+        encoder.copy_buffer_to_buffer(buffer, 0, staging, 0, size)
+    };
+    staged(gpu, size, copy, |view| {
+        view.chunks_exact(4)
+            .take(count)
+            .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect()
+    })
+}
+
 /// Reads the first `count` 64-bit words of a buffer created with `COPY_SRC` (resolved timestamp
 /// queries).
 pub fn read_buffer_u64(

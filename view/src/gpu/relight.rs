@@ -315,6 +315,8 @@ struct DirectPass {
     params: wgpu::Buffer,
     /// Room for one support average per sender point: `(sample, index)`.
     near: wgpu::Buffer,
+    /// The shadow rays the pass cast (one word, cleared per frame; read by timed frames).
+    rays: wgpu::Buffer,
     eps: f32,
 }
 
@@ -369,10 +371,18 @@ impl DirectPass {
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        b.bytes += near.size() + params.size();
+        let rays = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("direct shadow rays"),
+            size: 4,
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_DST
+                | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        b.bytes += near.size() + params.size() + rays.size();
         let (groups, _) = b.grid((senders as u32).div_ceil(WORKGROUP));
         let resources: Vec<wgpu::BindingResource<'_>> = [
-            &nodes, &corners, &points, &normals, &used, &near, out, &params,
+            &nodes, &corners, &points, &normals, &used, &near, out, &params, &rays,
         ]
         .iter()
         .map(|b| b.as_entire_binding())
@@ -387,6 +397,7 @@ impl DirectPass {
             },
             params,
             near,
+            rays,
             eps: caster.ray_epsilon(),
         }))
     }
@@ -821,6 +832,7 @@ impl<'r, 'a> GpuRelighter<'r, 'a> {
         stamp(&mut enc, 0);
         if let Some(d) = &self.direct {
             let t = Instant::now();
+            enc.clear_buffer(&d.rays, 0, None);
             d.dispatch.encode(&mut enc);
             times.direct_ms += stage_end(gpu, per_stage, &mut enc, t)?;
         }
@@ -846,6 +858,12 @@ impl<'r, 'a> GpuRelighter<'r, 'a> {
             enc.resolve_query_set(set, 0..STAMPS, resolved, 0);
         }
         gpu.queue.submit([enc.finish()]);
+        let mut shadow_rays = shadow_rays;
+        if let Some(d) = self.direct.as_ref().filter(|_| self.timed) {
+            // Timed frames wait for the GPU anyway: the ray count comes with them.
+            let counted = super::readback::read_buffer_u32(gpu, &d.rays, 1)?;
+            shadow_rays = u64::from(counted.first().copied().unwrap_or(0));
+        }
         if let Some((_, resolved)) = stamps {
             let ticks = super::readback::read_buffer_u64(gpu, resolved, STAMPS as usize)?;
             let ns = f64::from(gpu.queue.get_timestamp_period());

@@ -35,6 +35,8 @@ struct Params {
 @group(0) @binding(5) var<storage, read> near: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read_write> out: array<f32>;
 @group(0) @binding(7) var<uniform> params: Params;
+// The shadow rays cast this frame (cleared before the pass).
+@group(0) @binding(8) var<storage, read_write> rays: atomic<u32>;
 
 const NEAR_FULL: f32 = 2.0;
 const NEAR_NONE: f32 = 3.0;
@@ -208,7 +210,9 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
         var v = 0.0;
         if params.counts.w == 1u && k >= 4u && (even == 0u || even == half) {
             v = select(1.0, 0.0, even == 0u);
+            atomicAdd(&rays, half);
         } else {
+            atomicAdd(&rays, k);
             var odd = 0u;
             for (var s = 1u; s < k; s += 2u) {
                 odd += select(1u, 0u, occluded(origin, lp + ray_offset(s, k, radius, turn, frame), eps));
