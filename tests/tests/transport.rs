@@ -230,8 +230,13 @@ fn albedo_one_or_more_is_refused_with_a_reason() {
         let e = mlt_bake::bake_scene(&scene, &opts, &mlt_bake::Silent)
             .err()
             .expect("divergent scene accepted");
+        // Refused before any work (bake/src/albedo.rs), naming the albedo; the spectral radius
+        // check after T stays as a backstop.
         let msg = e.to_string();
-        assert!(msg.contains("spectral radius"), "{msg}");
+        assert!(
+            msg.contains("the sphere has albedo [") && msg.contains("not below 1"),
+            "{msg}"
+        );
     }
 }
 
