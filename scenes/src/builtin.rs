@@ -8,6 +8,7 @@
 //! | `box` | closed axis-aligned cube at the origin, seen from inside | `albedo` (0.5), `size` (1) |
 //! | `quad` | one square in the `y = 0` plane facing +Y | `albedo` (0.5), `size` (1) |
 //! | `triangle` | one triangle in the `y = 0` plane facing +Y | `albedo` (0.5) |
+//! | `rooms` | two rooms 4 m deep side by side (8 x 2.5 x 4 m in all), divided by a thin partition with a doorway at the far end; the light in the left room 10 cm from the partition, the camera in the right one looking at it | `albedo` (0.5), `thickness` (0.02), `door` (0.8 m wide; 0 seals the dark room) |
 //!
 //! `albedo` is one grey value or `r,g,b`, each finite and non-negative (values ≥ 1 load, with a
 //! warning; the bake rejects them). The content hash is the xxh3-64 of a canonical string:
@@ -34,6 +35,7 @@ const BUILTINS: &[(&str, &[&str])] = &[
     ("box", &["albedo", "size"]),
     ("quad", &["albedo", "size"]),
     ("triangle", &["albedo"]),
+    ("rooms", &["albedo", "thickness", "door"]),
 ];
 
 /// Loads the built-in scene `rest` (what follows `builtin:`).
@@ -54,6 +56,7 @@ pub fn load_builtin(rest: &str) -> Result<Scene, SceneError> {
         "sphere-mesh" => sphere_mesh(&mut params)?,
         "box" => cube(&mut params)?,
         "quad" => quad(&mut params)?,
+        "rooms" => rooms(&mut params)?,
         _ => triangle(&mut params)?,
     };
     if let Geometry::Mesh(mesh) = &mut built.geometry {
@@ -151,6 +154,19 @@ impl Params {
         };
         if x <= 0.0 {
             return Err(self.error(format!("{key}={x} must be > 0")));
+        }
+        self.canonical.insert(key, format!("{x:?}"));
+        Ok(x)
+    }
+
+    /// A finite number `>= 0` and below `max`.
+    fn in_range(&mut self, key: &'static str, default: f32, max: f32) -> Result<f32, SceneError> {
+        let x = match self.given.get(key) {
+            Some(text) => self.parse_f32(key, text)?,
+            None => default,
+        };
+        if !(0.0..max).contains(&x) {
+            return Err(self.error(format!("{key}={x} must be at least 0 and below {max}")));
         }
         self.canonical.insert(key, format!("{x:?}"));
         Ok(x)
@@ -657,10 +673,110 @@ fn triangle(p: &mut Params) -> Result<Built, SceneError> {
     })
 }
 
+/// Interior size of [`rooms`]: width (both rooms), height, depth.
+const ROOMS: [f32; 3] = [8.0, 2.5, 4.0];
+
+/// Two rooms side by side (x < 0 and x > 0), divided by a partition `thickness` thick at
+/// x = 0 that runs from the front wall (z = 0) to a doorway `door` wide at the back
+/// (z = 4 - door .. 4; `door = 0` seals the right room): the thin-wall case where light must
+/// stay on its side. The outer shell faces inward; the partition's two sides and its end
+/// face outward. The light is in the left room, 10 cm from the partition; the camera in the
+/// right room looks at the partition.
+fn rooms(p: &mut Params) -> Result<Built, SceneError> {
+    let albedo = p.albedo()?;
+    let t = p.positive("thickness", 0.02)?;
+    if t >= 1.0 {
+        return Err(p.error(format!(
+            "thickness={t} must be below 1 (the rooms are 4 m wide)"
+        )));
+    }
+    let door = p.in_range("door", 0.8, ROOMS[2])?;
+    let [w, h, d] = ROOMS;
+    let (x0, x1) = (-0.5 * w, 0.5 * w);
+    let v = Vec3::new;
+    let inside = v(0.0, 0.5 * h, 0.5 * d);
+    let mut tris: Vec<[Vec3; 3]> = Vec::new();
+    // The shell: floor, ceiling, front, back, left, right, facing the inside.
+    for q in [
+        [v(x0, 0., 0.), v(x1, 0., 0.), v(x1, 0., d), v(x0, 0., d)],
+        [v(x0, h, 0.), v(x1, h, 0.), v(x1, h, d), v(x0, h, d)],
+        [v(x0, 0., 0.), v(x1, 0., 0.), v(x1, h, 0.), v(x0, h, 0.)],
+        [v(x0, 0., d), v(x1, 0., d), v(x1, h, d), v(x0, h, d)],
+        [v(x0, 0., 0.), v(x0, h, 0.), v(x0, h, d), v(x0, 0., d)],
+        [v(x1, 0., 0.), v(x1, h, 0.), v(x1, h, d), v(x1, 0., d)],
+    ] {
+        tris.extend(oriented_quad(q, inside));
+    }
+    // The partition: its two sides and, with a doorway, its end.
+    let (a, b, end) = (-0.5 * t, 0.5 * t, d - door);
+    tris.extend(oriented_quad(
+        [v(a, 0., 0.), v(a, h, 0.), v(a, h, end), v(a, 0., end)],
+        v(x0, 0.5 * h, 0.5 * end),
+    ));
+    tris.extend(oriented_quad(
+        [v(b, 0., 0.), v(b, h, 0.), v(b, h, end), v(b, 0., end)],
+        v(x1, 0.5 * h, 0.5 * end),
+    ));
+    if door > 0.0 {
+        tris.extend(oriented_quad(
+            [v(a, 0., end), v(b, 0., end), v(b, h, end), v(a, h, end)],
+            v(0.0, 0.5 * h, d),
+        ));
+    }
+    let n = tris.len();
+    let mesh = mesh_from_triangles(&tris, vec![Material::plain("walls", albedo)], vec![0; n]);
+    let mut camera = camera(v(3.6, 1.4, 2.0), v(0.0, 1.2, 2.0), Vec3::Y, 70.0);
+    (camera.width, camera.height) = (320, 180);
+    Ok(Built {
+        geometry: Geometry::Mesh(mesh),
+        // In the lit room: its particles reach the dark one through the doorway.
+        viewpoint: v(-2.0, 1.25, 2.0),
+        camera,
+        // E = I / d^2 = 1 on the floor 1.5 m below.
+        light: point_light(v(a - 0.1, 1.5, 2.0), 2.25),
+        scale: 1.0,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::raycast::RayCaster;
+
+    #[test]
+    fn rooms_are_closed_divided_and_open_only_at_the_doorway() {
+        let s = load_builtin("rooms").expect("loads");
+        let caster = s.build_caster();
+        let light = Vec3::from(s.light.position);
+        let cam = Vec3::from(s.camera.position);
+        // The partition blocks the straight line from the light to the camera...
+        assert!(caster.occluded(light, cam));
+        // ...the doorway lets a line through at its height...
+        assert!(!caster.occluded(Vec3::new(-1.0, 1.0, 3.6), Vec3::new(1.0, 1.0, 3.6)));
+        // ...and sealed it does not.
+        let sealed = load_builtin("rooms?door=0").expect("loads").build_caster();
+        assert!(sealed.occluded(Vec3::new(-1.0, 1.0, 3.6), Vec3::new(1.0, 1.0, 3.6)));
+        // Every ray from inside either room hits something (closed), a face turned toward it.
+        let mesh = mesh_of(&s);
+        for origin in [cam, light] {
+            for k in 0..64 {
+                let a = k as f32 * 0.7;
+                let dir = Vec3::new(a.cos(), 0.3 * (1.3 * a).sin(), a.sin()).normalize();
+                let hit = caster
+                    .intersect(origin, dir, 0.0, f32::INFINITY)
+                    .expect("the rooms are closed");
+                let t = mesh.triangles[hit.prim_id as usize].map(|i| mesh.positions[i as usize]);
+                let n = (t[1] - t[0]).cross(t[2] - t[0]);
+                assert!(
+                    n.dot(dir) < 0.0,
+                    "a face turned away at ray {k} from {origin}"
+                );
+            }
+        }
+        for bad in ["rooms?thickness=1", "rooms?door=4", "rooms?door=-1"] {
+            assert!(load_builtin(bad).is_err(), "{bad}");
+        }
+    }
 
     fn mesh_of(scene: &Scene) -> &Mesh {
         match &scene.geometry {
