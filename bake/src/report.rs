@@ -276,15 +276,16 @@ pub fn estimate_table(
         (Some(c), _) => {
             let _ = writeln!(
                 o,
-                "error est.    {total} of the indirect light = {parts} + indirect light at the camera {} +- {} (signed: the image is that much too {}; traced through {}x{} primary rays with {} paths each; the first bounce alone {} +- {}: T's dropped links, the direct light's projection and the basis)",
+                "error est.    {total} of the indirect light = {parts} + indirect light at the camera {} +- {} (signed: the image is that much too {}; traced through {}x{} primary rays with {} paths each; the first bounce alone {} +- {} too {}: T's dropped links, the direct light's projection and the basis)",
                 signed_pct(c.share_all),
                 pct(c.std_error_all),
                 too_dark_or_bright(c.share_all),
                 c.width,
                 c.height,
                 c.rays,
-                signed_pct(c.share),
-                pct(c.std_error)
+                pct(c.share.abs()),
+                pct(c.std_error),
+                too_dark_or_bright(c.share)
             );
             if let Some(d) = drop {
                 let _ = writeln!(

@@ -316,11 +316,12 @@ pub fn camera_warning(c: &CameraCheck) -> Option<String> {
     let d = c.share_all;
     (d.abs() > CAMERA_WARNING && d.abs() > 2.0 * c.std_error_all).then(|| {
         format!(
-            "at the scene's camera the indirect light is about {:.1} % (+- {:.1} %) too {} against traced paths (the first bounce alone {:+.1} %: T's dropped links, the direct light's projection and the basis; the rest is the later bounces)",
+            "at the scene's camera the indirect light is about {:.1} % (+- {:.1} %) too {} against traced paths (the first bounce alone {:.1} % too {}: T's dropped links, the direct light's projection and the basis; the rest is the later bounces)",
             100.0 * d.abs(),
             100.0 * c.std_error_all,
             too_dark_or_bright(d),
-            100.0 * c.share
+            100.0 * c.share.abs(),
+            too_dark_or_bright(c.share)
         )
     })
 }
@@ -834,6 +835,39 @@ fn error_warnings(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_camera_warning_says_which_way_each_part_is_off() {
+        let check = |all: f64, first: f64| mlt_format::meta::CameraCheck {
+            width: 160,
+            height: 90,
+            rays: 32,
+            cells_hit: 100,
+            traced: [1.0; 3],
+            baked: [1.0; 3],
+            share: first,
+            std_error: 0.001,
+            traced_all: [1.0; 3],
+            baked_all: [1.0; 3],
+            share_all: all,
+            std_error_all: 0.001,
+        };
+        let w = camera_warning(&check(0.109, -0.148)).expect("a warning");
+        assert!(w.contains("10.9 % (+- 0.1 %) too dark"), "{w}");
+        assert!(
+            w.contains("the first bounce alone 14.8 % too bright"),
+            "{w}"
+        );
+        let w = camera_warning(&check(-0.2, 0.05)).expect("a warning");
+        assert!(
+            w.contains("too bright against") && w.contains("alone 5.0 % too dark"),
+            "{w}"
+        );
+        assert!(
+            camera_warning(&check(0.001, 0.2)).is_none(),
+            "under the threshold"
+        );
+    }
 
     #[test]
     fn the_camera_warning_needs_a_share_above_three_percent_and_twice_its_error() {
