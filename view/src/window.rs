@@ -214,9 +214,13 @@ impl App<'_, '_> {
         let mut renderer = Renderer::for_flat(&gpu, &mesh, fb, hier, self.setup.shadow_res)?;
         renderer.set_half_precision_splat(&gpu, self.setup.half_splat);
         let flat = fb.ib.clone();
-        let on_gpu = self.setup.gpu_relight.unwrap_or(!gpu.is_software());
+        let wanted = self.setup.gpu_relight;
+        let on_gpu = wanted.unwrap_or(!gpu.is_software());
         match std::mem::replace(&mut self.setup.relighter, Relighting::Moving) {
-            Relighting::Cpu(cpu) if on_gpu => {
+            // `auto` keeps the CPU for what the GPU does not run; an explicit `gpu` says why.
+            Relighting::Cpu(cpu)
+                if on_gpu && (wanted == Some(true) || GpuRelighter::supports(cpu).is_ok()) =>
+            {
                 GpuRelighter::supports(cpu).map_err(|e| anyhow!("{e}"))?;
                 let g = GpuRelighter::new(&gpu, cpu, Some(renderer.coefficient_buffer()))
                     .context("uploading the relighting to the GPU (or use --relight cpu)")?;

@@ -267,3 +267,39 @@ fn render_and_timings_run_the_gpu_relighter_from_the_command_line() {
     assert_eq!(json["relight"], "gpu");
     assert!(json["median_ms"]["transport"].as_f64().unwrap() > 0.0);
 }
+
+/// A file whose level-0 bounces are chained (`--level0-paths 0`) needs the bounce-light
+/// feedback, which the GPU relighter does not run: `--relight gpu` says so and writes nothing,
+/// `--relight cpu` renders it.
+#[test]
+fn what_the_gpu_does_not_run_is_refused_by_name() {
+    let d = temp_dir("gpu_relight", "chained");
+    let f = d.join("chained.mlt");
+    bake_to(
+        &f,
+        "builtin:cornell",
+        BakeOptions {
+            level0_paths: Some(0),
+            ..options()
+        },
+    );
+    let render = |relight: &str| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_view"))
+            .arg("render")
+            .arg(&f)
+            .arg("--out")
+            .arg(d.join(relight))
+            .args(["--width", "48", "--height", "36", "--relight", relight])
+            .output()
+            .unwrap()
+    };
+    let o = render("gpu");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("bounce-light feedback"),
+        "{err}"
+    );
+    assert!(!d.join("gpu").join("final.exr").exists());
+    let o = render("cpu");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}

@@ -19,7 +19,7 @@ use mlt_view::headless::{self, Timings};
 use mlt_view::oracle::{oracle, OracleRelighter};
 use mlt_view::reference::{render_reference, write_reference, ReferenceOptions};
 
-use crate::cmd::args::{BakedArgs, GpuArgs};
+use crate::cmd::args::{BakedArgs, FlattenOn, GpuArgs};
 use crate::cmd::load::{with_viewing, Viewing};
 
 /// Renders images without a window.
@@ -96,7 +96,9 @@ fn images(args: &RenderArgs, v: &mut Viewing<'_>) -> Result<Timings> {
     let flat = fb.ib.clone();
     let path_radius = v.path_radius();
     let frames = args.frames.unwrap_or(1);
-    let relight_on_gpu = args.gpu.relight.on_gpu(&gpu);
+    // `auto` keeps the CPU for what the GPU does not run; an explicit `gpu` says why.
+    let relight_on_gpu = args.gpu.relight.on_gpu(&gpu)
+        && (args.gpu.relight == FlattenOn::Gpu || GpuRelighter::supports(&v.relighter).is_ok());
     let mut clock = "";
     let (buffers, mut timings) = if relight_on_gpu {
         // The relighting's compute passes write the flat coefficients the splatting reads.
