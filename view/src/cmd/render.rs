@@ -100,6 +100,10 @@ fn images(args: &RenderArgs, v: &mut Viewing<'_>) -> Result<Timings> {
     let relight_on_gpu = args.gpu.relight.on_gpu(&gpu)
         && (args.gpu.relight == FlattenOn::Gpu || GpuRelighter::supports(&v.relighter).is_ok());
     let mut clock = "";
+    let (camera, light, spp) = (v.camera, v.light, args.spp);
+    let draw = |driver: &mut FrameDriver<'_>| {
+        headless::render(driver, &camera, &light, frames, spp, path_radius)
+    };
     let (buffers, mut timings) = if relight_on_gpu {
         // The relighting's compute passes write the flat coefficients the splatting reads.
         let mut relighter =
@@ -118,14 +122,7 @@ fn images(args: &RenderArgs, v: &mut Viewing<'_>) -> Result<Timings> {
             relighter: &mut bound,
             ib: &flat,
         };
-        let out = headless::render(
-            &mut driver,
-            &v.camera,
-            &v.light,
-            frames,
-            args.spp,
-            path_radius,
-        );
+        let out = draw(&mut driver);
         if let Some(e) = bound.error {
             return Err(e).context("relighting on the GPU");
         }
@@ -142,14 +139,7 @@ fn images(args: &RenderArgs, v: &mut Viewing<'_>) -> Result<Timings> {
                 .flatten_on_gpu()
                 .context("uploading the flattening operator")?;
         }
-        headless::render(
-            &mut driver,
-            &v.camera,
-            &v.light,
-            frames,
-            args.spp,
-            path_radius,
-        )
+        draw(&mut driver)
     }
     .with_context(|| format!("rendering {}", v.path.display()))?;
     timings.load = Some(*v.relighter.load_stats());

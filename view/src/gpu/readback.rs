@@ -80,59 +80,30 @@ pub fn read_raw(
     })
 }
 
-/// Reads the first `count` floats of a buffer created with `COPY_SRC`.
+/// Reads the first `count` values of a buffer created with `COPY_SRC` (floats, words,
+/// resolved timestamp queries).
+pub fn read_buffer<T: bytemuck::Pod>(
+    gpu: &Gpu,
+    buffer: &wgpu::Buffer,
+    count: usize,
+) -> Result<Vec<T>, GpuError> {
+    let bytes = count * std::mem::size_of::<T>();
+    let size = bytes.max(std::mem::size_of::<T>()) as u64;
+    let copy = |encoder: &mut wgpu::CommandEncoder, staging: &wgpu::Buffer| {
+        encoder.copy_buffer_to_buffer(buffer, 0, staging, 0, size)
+    };
+    staged(gpu, size, copy, |view| {
+        bytemuck::pod_collect_to_vec::<u8, T>(&view[..bytes])
+    })
+}
+
+/// [`read_buffer`] of floats.
 pub fn read_buffer_f32(
     gpu: &Gpu,
     buffer: &wgpu::Buffer,
     count: usize,
 ) -> Result<Vec<f32>, GpuError> {
-    let size = (count.max(1) * 4) as u64;
-    let copy = |encoder: &mut wgpu::CommandEncoder, staging: &wgpu::Buffer| {
-        encoder.copy_buffer_to_buffer(buffer, 0, staging, 0, size)
-    };
-    staged(gpu, size, copy, |view| {
-        view.chunks_exact(4)
-            .take(count)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect()
-    })
-}
-
-/// Reads the first `count` 32-bit unsigned words of a buffer created with `COPY_SRC`.
-pub fn read_buffer_u32(
-    gpu: &Gpu,
-    buffer: &wgpu::Buffer,
-    count: usize,
-) -> Result<Vec<u32>, GpuError> {
-    let size = (count.max(1) * 4) as u64;
-    let copy = |encoder: &mut wgpu::CommandEncoder, staging: &wgpu::Buffer| {
-        encoder.copy_buffer_to_buffer(buffer, 0, staging, 0, size)
-    };
-    staged(gpu, size, copy, |view| {
-        view.chunks_exact(4)
-            .take(count)
-            .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect()
-    })
-}
-
-/// Reads the first `count` 64-bit words of a buffer created with `COPY_SRC` (resolved timestamp
-/// queries).
-pub fn read_buffer_u64(
-    gpu: &Gpu,
-    buffer: &wgpu::Buffer,
-    count: usize,
-) -> Result<Vec<u64>, GpuError> {
-    let size = (count.max(1) * 8) as u64;
-    let copy = |encoder: &mut wgpu::CommandEncoder, staging: &wgpu::Buffer| {
-        encoder.copy_buffer_to_buffer(buffer, 0, staging, 0, size)
-    };
-    staged(gpu, size, copy, |view| {
-        view.chunks_exact(8)
-            .take(count)
-            .map(|c| u64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]))
-            .collect()
-    })
+    read_buffer(gpu, buffer, count)
 }
 
 /// Copies into a staging buffer of `size` bytes with `copy`, waits for the copy and returns

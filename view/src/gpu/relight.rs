@@ -861,11 +861,11 @@ impl<'r, 'a> GpuRelighter<'r, 'a> {
         let mut shadow_rays = shadow_rays;
         if let Some(d) = self.direct.as_ref().filter(|_| self.timed) {
             // Timed frames wait for the GPU anyway: the ray count comes with them.
-            let counted = super::readback::read_buffer_u32(gpu, &d.rays, 1)?;
+            let counted = super::readback::read_buffer::<u32>(gpu, &d.rays, 1)?;
             shadow_rays = u64::from(counted.first().copied().unwrap_or(0));
         }
         if let Some((_, resolved)) = stamps {
-            let ticks = super::readback::read_buffer_u64(gpu, resolved, STAMPS as usize)?;
+            let ticks = super::readback::read_buffer::<u64>(gpu, resolved, STAMPS as usize)?;
             let ns = f64::from(gpu.queue.get_timestamp_period());
             let ms = |a: usize, b: usize| ticks[b].saturating_sub(ticks[a]) as f64 * ns * 1e-6;
             if self.direct.is_some() {
