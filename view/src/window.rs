@@ -214,14 +214,8 @@ impl App<'_, '_> {
         let mut renderer = Renderer::for_flat(&gpu, &mesh, fb, hier, self.setup.shadow_res)?;
         renderer.set_half_precision_splat(&gpu, self.setup.half_splat);
         let flat = fb.ib.clone();
-        let wanted = self.setup.gpu_relight;
-        let on_gpu = wanted.unwrap_or(!gpu.is_software());
         match std::mem::replace(&mut self.setup.relighter, Relighting::Moving) {
-            // `auto` keeps the CPU for what the GPU does not run; an explicit `gpu` says why.
-            Relighting::Cpu(cpu)
-                if on_gpu && (wanted == Some(true) || GpuRelighter::supports(cpu).is_ok()) =>
-            {
-                GpuRelighter::supports(cpu).map_err(|e| anyhow!("{e}"))?;
+            Relighting::Cpu(cpu) if GpuRelighter::chosen(self.setup.gpu_relight, &gpu, cpu) => {
                 let g = GpuRelighter::new(&gpu, cpu, Some(renderer.coefficient_buffer()))
                     .context("uploading the relighting to the GPU (or use --relight cpu)")?;
                 self.setup.relighter = Relighting::Gpu(Box::new(g));

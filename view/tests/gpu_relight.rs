@@ -64,27 +64,51 @@ fn assert_close(what: &str, gpu: &[f32], cpu: &[f32], entry: f32, rms: f64) {
     assert!(r <= rms, "{what}: relative RMS {r}");
 }
 
-/// Opens a bake of the built-in Cornell box and runs `check` with its basis, links and caster.
-fn with_cornell(name: &str, check: impl FnOnce(&BakedFile, &mlt_scenes::Scene)) {
+/// A bake of the built-in Cornell box, opened for relighting.
+struct Cornell<'a> {
+    file: &'a BakedFile,
+    scene: &'a mlt_scenes::Scene,
+    ib: &'a mlt_format::IndexedBasis,
+    tm: &'a mlt_format::meta::TransportMeta,
+    links: &'a mlt_format::links::ArchivedLinks,
+    caster: &'a dyn mlt_scenes::RayCaster,
+}
+
+impl Cornell<'_> {
+    /// A CPU relighter of the file, 4 shadow rays a sender point.
+    fn relighter(&self) -> CpuRelighter<'_> {
+        let levels = self.tm.params.sender_levels as usize;
+        CpuRelighter::new(self.ib, self.links, self.caster, levels, 4).unwrap()
+    }
+}
+
+/// Bakes the built-in Cornell box, opens it and runs `check` on it.
+fn with_cornell(name: &str, check: impl FnOnce(&Cornell<'_>)) {
     let d = temp_dir("gpu_relight", name);
     let f = d.join("cornell.mlt");
     bake_to(&f, "builtin:cornell", options());
     let file = BakedFile::open(&f).unwrap();
     let scene = mlt_scenes::load_scene("builtin:cornell").unwrap();
-    check(&file, &scene);
+    let ib = file.basis().unwrap();
+    let tm = file.transport_meta().unwrap().unwrap();
+    let lb = file.links_bytes().unwrap().unwrap();
+    let links = file.access_links(&lb).unwrap();
+    let caster = scene.build_caster();
+    check(&Cornell {
+        file: &file,
+        scene: &scene,
+        ib: &ib,
+        tm: &tm,
+        links,
+        caster: caster.as_ref(),
+    });
 }
 
 #[test]
 fn every_stage_matches_the_cpu_relighter_for_a_moving_light_exact_and_lagged() {
-    with_cornell("stages", |file, scene| {
-        let ib = file.basis().unwrap();
-        let tm = file.transport_meta().unwrap().unwrap();
-        let lb = file.links_bytes().unwrap().unwrap();
-        let links = file.access_links(&lb).unwrap();
-        let caster = scene.build_caster();
-        let levels = tm.params.sender_levels as usize;
+    with_cornell("stages", |c| {
         let make = |lagged: bool| {
-            let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), levels, 4).unwrap();
+            let mut r = c.relighter();
             // The fine bounces from every sender point, whatever the file needs: both paths
             // then run every kernel.
             r.fine_bounces = true;
@@ -155,7 +179,7 @@ fn every_stage_matches_the_cpu_relighter_for_a_moving_light_exact_and_lagged() {
             whole.read(&gpu, GpuArray::Receivers).unwrap(),
             split.read(&gpu, GpuArray::Receivers).unwrap(),
         );
-        assert!(links.link_count() > 20_000, "too few links to split");
+        assert!(c.links.link_count() > 20_000, "too few links to split");
         assert_close("split links", &b, &a, 1e-6, 1e-6);
         // The lagged emission is the previous frame's bounce light: reading it after a frame
         // gives the emission of that frame's `i`, as the CPU's reconstruction computes it.
@@ -172,28 +196,22 @@ fn every_stage_matches_the_cpu_relighter_for_a_moving_light_exact_and_lagged() {
 
 #[test]
 fn the_gpu_relighters_image_is_the_cpu_relighters_within_one_percent() {
-    with_cornell("image", |file, scene| {
-        let ib = file.basis().unwrap();
-        let tm = file.transport_meta().unwrap().unwrap();
-        let lb = file.links_bytes().unwrap().unwrap();
-        let links = file.access_links(&lb).unwrap();
-        let caster = scene.build_caster();
-        let levels = tm.params.sender_levels as usize;
+    with_cornell("image", |c| {
         let make = || {
-            let mut r = CpuRelighter::new(&ib, links, caster.as_ref(), levels, 4).unwrap();
-            r.use_bounce_corrections(&tm, file.bounce_method().unwrap().as_ref(), None);
+            let mut r = c.relighter();
+            r.use_bounce_corrections(c.tm, c.file.bounce_method().unwrap().as_ref(), None);
             r
         };
         let gpu = gpu();
         let mut cpu = make();
         let flat = cpu.flat_basis().clone();
-        let mesh = GpuMesh::from_scene(scene);
+        let mesh = GpuMesh::from_scene(c.scene);
         let mut with_cpu = Renderer::new(&gpu, &mesh, &flat, 256).unwrap();
         let mut with_gpu = Renderer::new(&gpu, &mesh, &flat, 256).unwrap();
         let source = make();
         let mut on_gpu =
             GpuRelighter::new(&gpu, &source, Some(with_gpu.coefficient_buffer())).unwrap();
-        let camera = small(160, 120)(&Camera::from_info(&file.meta().unwrap().camera).unwrap());
+        let camera = small(160, 120)(&Camera::from_info(&c.file.meta().unwrap().camera).unwrap());
         // The camera turned 0.4 rad about its up axis.
         let mut turned = camera;
         turned.target = camera.position

@@ -19,7 +19,7 @@ use mlt_view::headless::{self, Timings};
 use mlt_view::oracle::{oracle, OracleRelighter};
 use mlt_view::reference::{render_reference, write_reference, ReferenceOptions};
 
-use crate::cmd::args::{BakedArgs, FlattenOn, GpuArgs};
+use crate::cmd::args::{BakedArgs, GpuArgs};
 use crate::cmd::load::{with_viewing, Viewing};
 
 /// Renders images without a window.
@@ -96,9 +96,7 @@ fn images(args: &RenderArgs, v: &mut Viewing<'_>) -> Result<Timings> {
     let flat = fb.ib.clone();
     let path_radius = v.path_radius();
     let frames = args.frames.unwrap_or(1);
-    // `auto` keeps the CPU for what the GPU does not run; an explicit `gpu` says why.
-    let relight_on_gpu = args.gpu.relight.on_gpu(&gpu)
-        && (args.gpu.relight == FlattenOn::Gpu || GpuRelighter::supports(&v.relighter).is_ok());
+    let relight_on_gpu = GpuRelighter::chosen(args.gpu.relight.choice(), &gpu, &v.relighter);
     let mut clock = "";
     let (camera, light, spp) = (v.camera, v.light, args.spp);
     let draw = |driver: &mut FrameDriver<'_>| {

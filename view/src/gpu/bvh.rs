@@ -41,10 +41,8 @@ impl Bvh {
             })
             .collect();
         let mut order: Vec<u32> = (0..tris.len() as u32).collect();
-        let centroid = |i: u32| {
-            let t = &tris[i as usize];
-            (t[0] + t[1] + t[2]) / 3.0
-        };
+        let centroids: Vec<Vec3> = tris.iter().map(|t| (t[0] + t[1] + t[2]) / 3.0).collect();
+        let centroid = |i: u32| centroids[i as usize];
         let mut nodes = vec![Node::default()];
         // (node, range of `order`) still to split.
         let mut todo = vec![(0usize, 0usize, order.len())];
@@ -106,6 +104,7 @@ impl Bvh {
 
     /// Whether the segment from `a` to `b`, less `eps` at each end, meets a triangle: the walk
     /// the shader does, for tests.
+    #[cfg(test)]
     pub fn occluded(&self, a: Vec3, b: Vec3, eps: f32) -> bool {
         let d = b - a;
         let len = d.length();
@@ -140,6 +139,7 @@ impl Bvh {
 }
 
 /// Whether the ray `o + t d` (`inv` = 1 / d) meets the box for some `t` in `[t0, t1]`.
+#[cfg(test)]
 fn slab(lo: Vec3, hi: Vec3, o: Vec3, inv: Vec3, t0: f32, t1: f32) -> bool {
     let (a, b) = ((lo - o) * inv, (hi - o) * inv);
     let (near, far) = (
@@ -150,6 +150,7 @@ fn slab(lo: Vec3, hi: Vec3, o: Vec3, inv: Vec3, t0: f32, t1: f32) -> bool {
 }
 
 /// Möller-Trumbore: the ray parameter of the hit with the triangle `v0 v1 v2`, either side.
+#[cfg(test)]
 fn intersect(o: Vec3, d: Vec3, v0: Vec3, v1: Vec3, v2: Vec3) -> Option<f32> {
     let (e1, e2) = (v1 - v0, v2 - v0);
     let p = d.cross(e2);

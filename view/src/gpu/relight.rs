@@ -307,6 +307,115 @@ impl Projection {
     }
 }
 
+/// `S` receiver-major on the GPU ([`TransposedLinks`]): per link a 32-bit sender slot and
+/// nine half floats in five words (the tenth half zero, so that a link is five aligned loads),
+/// the rows in chunks whose link values fit one storage buffer each.
+struct Links {
+    receiver_ids: wgpu::Buffer,
+    row_offsets: wgpu::Buffer,
+    sender_ids: wgpu::Buffer,
+    scales: wgpu::Buffer,
+    /// Stored sender slots.
+    slots: u32,
+    /// The first row of a finer receiver (the level-0 rows come first).
+    first_fine: u32,
+    chunks: Vec<LinkChunk>,
+}
+
+/// Rows `rows.0..rows.1` and their links, the first being link `base` of the whole.
+struct LinkChunk {
+    rows: (u32, u32),
+    base: u32,
+    slots: wgpu::Buffer,
+    values: wgpu::Buffer,
+}
+
+impl Links {
+    /// Uploads the links of `cpu`'s file, at most `max_links` links a chunk (`None`: as many
+    /// as the adapter's largest storage buffer holds of the values' 20 bytes a link).
+    fn upload(
+        b: &mut Builder<'_>,
+        cpu: &CpuRelighter<'_>,
+        max_links: Option<u64>,
+    ) -> Result<Links, GpuError> {
+        let (ib, links) = cpu.basis_and_links();
+        let t = TransposedLinks::build(links, |_, _| true);
+        let words: Vec<u32> = t
+            .values
+            .iter()
+            .flat_map(|v| {
+                let h = |d: usize| u32::from(v.get(d).copied().unwrap_or(0));
+                [0, 2, 4, 6, 8].map(|d| h(d) | (h(d + 1) << 16))
+            })
+            .collect();
+        let rows = t.receiver_ids.len();
+        let max_links = max_links.unwrap_or(b.max_binding / 20).max(1);
+        let mut chunks = Vec::new();
+        let mut start = 0usize;
+        for q in 0..rows {
+            let end_here =
+                q + 1 == rows || u64::from(t.offsets[q + 2] - t.offsets[start]) > max_links;
+            if end_here {
+                let (a, e) = (t.offsets[start] as usize, t.offsets[q + 1] as usize);
+                chunks.push(LinkChunk {
+                    rows: (start as u32, (q + 1) as u32),
+                    base: t.offsets[start],
+                    slots: b.storage("sender slots", &t.slots[a..e])?,
+                    values: b.storage("link values", &words[5 * a..5 * e])?,
+                });
+                start = q + 1;
+            }
+        }
+        let m = ib.basis.level_range(0).len() as u32;
+        Ok(Links {
+            receiver_ids: b.storage("receivers", &t.receiver_ids)?,
+            row_offsets: b.storage("row offsets", &t.offsets)?,
+            sender_ids: b.storage("slot senders", &t.sender_ids)?,
+            scales: b.storage("slot scales", &t.scales)?,
+            slots: t.sender_ids.len() as u32,
+            first_fine: t.receiver_ids.partition_point(|&r| r < m) as u32,
+            chunks,
+        })
+    }
+
+    /// The dispatches of the product over the rows from `first` on, one a chunk, into `i`
+    /// (added with `add`), with the sender weights `w`; the rows of receivers below `m` take
+    /// the first three weights of a slot.
+    #[allow(clippy::too_many_arguments)]
+    fn product(
+        &self,
+        b: &Builder<'_>,
+        k: &Kernels,
+        w: &wgpu::Buffer,
+        i: &wgpu::Buffer,
+        m: u32,
+        first: u32,
+        add: bool,
+    ) -> Vec<Dispatch> {
+        self.chunks
+            .iter()
+            .filter(|c| c.rows.1 > first)
+            .map(|c| {
+                let from = first.max(c.rows.0);
+                b.dispatch(
+                    &k.transport,
+                    &[
+                        &self.receiver_ids,
+                        &self.row_offsets,
+                        &c.slots,
+                        &c.values,
+                        w,
+                        i,
+                    ],
+                    c.rows.1 - from,
+                    true,
+                    [from, c.rows.1, 0, m, u32::from(add), c.base, 0, 0],
+                )
+            })
+            .collect()
+    }
+}
+
 /// Step 1 on the GPU: the shadow rays through the scene's triangles, with the light's
 /// parameters and the support averages near the light written per frame.
 struct DirectPass {
@@ -492,8 +601,10 @@ pub struct GpuRelighter<'r, 'a> {
     lagged: bool,
     /// The emission buffer holds the previous frame's `y` (lagged frames can use it).
     has_prev: bool,
+    /// False after a lagged frame that took the `y` of another light: the same light again is
+    /// relit once more, with its own.
     lag_settled: bool,
-    lag_light: Option<Light>,
+    /// The light of the last frame (whose `y` the emission buffer holds).
     last: Option<Light>,
     frame: Frame,
     /// Bytes uploaded and allocated on the GPU.
@@ -535,7 +646,7 @@ impl<'r, 'a> GpuRelighter<'r, 'a> {
         max_links: Option<u64>,
     ) -> Result<GpuRelighter<'r, 'a>, GpuError> {
         Self::supports(cpu)?;
-        let (ib, links) = cpu.basis_and_links();
+        let (ib, _) = cpu.basis_and_links();
         let points = ib.basis.len();
         let Some(op) = cpu.flatten_op() else {
             return Err(GpuError::Validation(
@@ -553,112 +664,36 @@ impl<'r, 'a> GpuRelighter<'r, 'a> {
         };
         let senders = cpu.pull_push_op().parts().points;
         let m = ib.basis.level_range(0).len() as u32;
-        let fine_senders = cpu.fine_bounces;
-
-        // S, receiver-major: a link's nine half floats in five words (the tenth half zero), so
-        // that a link is five aligned loads.
-        let t = TransposedLinks::build(links, |_, _| true);
-        let words: Vec<u32> = t
-            .values
-            .iter()
-            .flat_map(|v| {
-                let h = |d: usize| u32::from(v.get(d).copied().unwrap_or(0));
-                [0, 2, 4, 6, 8].map(|d| h(d) | (h(d + 1) << 16))
-            })
-            .collect();
-        let rows = t.receiver_ids.len() as u32;
-        let first_fine = t.receiver_ids.partition_point(|&r| r < m) as u32;
-        let receiver_ids = b.storage("receivers", &t.receiver_ids)?;
-        let row_offsets = b.storage("row offsets", &t.offsets)?;
-        // The rows in chunks whose links fit one storage buffer each (20 bytes a link), one
-        // dispatch a chunk.
-        let max_links = max_links.unwrap_or(b.max_binding / 20).max(1);
-        let mut chunks: Vec<(u32, u32, wgpu::Buffer, wgpu::Buffer)> = Vec::new();
-        let mut start = 0usize;
-        for q in 0..rows as usize {
-            let end_here = q + 1 == rows as usize
-                || u64::from(t.offsets[q + 2] - t.offsets[start]) > max_links;
-            if end_here {
-                let (a, e) = (t.offsets[start] as usize, t.offsets[q + 1] as usize);
-                chunks.push((
-                    start as u32,
-                    (q + 1) as u32,
-                    b.storage("sender slots", &t.slots[a..e])?,
-                    b.storage("link values", &words[5 * a..5 * e])?,
-                ));
-                start = q + 1;
-            }
-        }
-        let sender_ids = b.storage("slot senders", &t.sender_ids)?;
-        let scales = b.storage("slot scales", &t.scales)?;
-        let slot_count = t.sender_ids.len() as u32;
-
+        let links = Links::upload(&mut b, cpu, max_links)?;
         let projection = Projection::upload(&mut b, cpu)?;
-        let r = cpu.feedback_op().parts();
-        let normals = b.storage("sender normals", r.normals.as_flattened())?;
-        let r_offsets = b.storage("reconstruction offsets", r.offsets)?;
-        let r_columns = b.storage("reconstruction columns", r.columns)?;
-        let r_weights = b.storage("reconstruction weights", r.weights)?;
-
         let senders_buf = b.floats("sender coefficients", 3 * senders);
         let emission = b.floats("bounce emission", 3 * senders);
-        let w = b.floats("sender weights", 6 * slot_count as usize);
+        let w = b.floats("sender weights", 6 * links.slots as usize);
         let receivers_buf = b.floats("receiver coefficients", LINK_DIM * points);
         let flat_points = op.points();
         let flat_out = match output {
             Some(o) => o.clone(),
             None => b.floats("flat coefficients", LINK_DIM * flat_points),
         };
-
         let weights = [0u32, 1, 2].map(|mode| {
             b.dispatch(
                 &kernels.weights,
-                &[&sender_ids, &scales, &senders_buf, &emission, &w],
-                slot_count,
+                &[
+                    &links.sender_ids,
+                    &links.scales,
+                    &senders_buf,
+                    &emission,
+                    &w,
+                ],
+                links.slots,
                 false,
-                [slot_count, mode, 0, 0, 0, 0, 0, 0],
+                [links.slots, mode, 0, 0, 0, 0, 0, 0],
             )
         });
-        let transport = |first: u32, add: u32| {
-            chunks
-                .iter()
-                .filter(|c| c.1 > first)
-                .map(|(start, end, slots, values)| {
-                    let from = first.max(*start);
-                    let base = t.offsets[*start as usize];
-                    b.dispatch(
-                        &kernels.transport,
-                        &[
-                            &receiver_ids,
-                            &row_offsets,
-                            slots,
-                            values,
-                            &w,
-                            &receivers_buf,
-                        ],
-                        end - from,
-                        true,
-                        [from, *end, 0, m, add, base, 0, 0],
-                    )
-                })
-                .collect::<Vec<Dispatch>>()
-        };
-        let (transport_all, transport_fine) = (transport(0, 0), transport(first_fine, 1));
-        drop(t);
-        let reconstruct = b.dispatch(
-            &kernels.reconstruct,
-            &[
-                &normals,
-                &r_offsets,
-                &r_columns,
-                &r_weights,
-                &receivers_buf,
-                &emission,
-            ],
-            senders as u32,
-            false,
-            [senders as u32, 0, 0, 0, 0, 0, 0, 0],
-        );
+        let transport_all = links.product(&b, &kernels, &w, &receivers_buf, m, 0, false);
+        let transport_fine =
+            links.product(&b, &kernels, &w, &receivers_buf, m, links.first_fine, true);
+        let reconstruct = reconstruction(&mut b, &kernels, cpu, &receivers_buf, &emission)?;
         let direct = DirectPass::upload(&mut b, &kernels, cpu, senders, &senders_buf)?;
         let project_e = projection.dispatches(&b, &kernels, &senders_buf);
         let project_y = projection.dispatches(&b, &kernels, &emission);
@@ -668,21 +703,6 @@ impl<'r, 'a> GpuRelighter<'r, 'a> {
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(GpuError::Validation(e.to_string()));
         }
-        let lagged = cpu.lagged_feedback && fine_senders;
-        let stamps = gpu.report.timestamps.then(|| {
-            let set = device.create_query_set(&wgpu::QuerySetDescriptor {
-                label: Some("relight stages"),
-                ty: wgpu::QueryType::Timestamp,
-                count: STAMPS,
-            });
-            let resolved = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("relight stage times"),
-                size: u64::from(STAMPS) * 8,
-                usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
-                mapped_at_creation: false,
-            });
-            (set, resolved)
-        });
         Ok(GpuRelighter {
             cpu,
             senders_buf,
@@ -700,16 +720,15 @@ impl<'r, 'a> GpuRelighter<'r, 'a> {
             senders,
             points,
             flat_points,
-            fine_senders,
-            lagged,
+            fine_senders: cpu.fine_bounces,
+            lagged: cpu.lagged_feedback && cpu.fine_bounces,
             has_prev: false,
             lag_settled: true,
-            lag_light: None,
             last: None,
             frame: Frame::default(),
             bytes,
             timed: false,
-            stamps,
+            stamps: timestamps(gpu),
         })
     }
 
@@ -717,6 +736,14 @@ impl<'r, 'a> GpuRelighter<'r, 'a> {
     /// triangles (an analytic sphere's rays are cast by the CPU).
     pub fn direct_on_gpu(&self) -> bool {
         self.direct.is_some()
+    }
+
+    /// Whether to relight on `gpu`: as `choice` says, or without one (`--relight auto`) unless
+    /// the adapter is a software rasteriser (where the CPU path is faster) or the GPU does not
+    /// run `cpu`'s settings ([`GpuRelighter::supports`]; an explicit choice then fails with its
+    /// reason in [`GpuRelighter::new`]).
+    pub fn chosen(choice: Option<bool>, gpu: &Gpu, cpu: &CpuRelighter<'_>) -> bool {
+        choice.unwrap_or_else(|| !gpu.is_software() && Self::supports(cpu).is_ok())
     }
 
     /// Whether the GPU runs `cpu`'s settings and file: an error naming what it does not run
@@ -742,11 +769,6 @@ impl<'r, 'a> GpuRelighter<'r, 'a> {
             return unsupported("a flattening operator too large for 32-bit offsets");
         }
         Ok(())
-    }
-
-    /// The CPU relighter whose direct light and settings this one uses.
-    pub fn cpu(&self) -> &'r CpuRelighter<'a> {
-        self.cpu
     }
 
     /// Reads one of the resident arrays back (waits for the GPU; for tests and diagnostics).
@@ -775,14 +797,9 @@ impl<'r, 'a> GpuRelighter<'r, 'a> {
         self.flat_points
     }
 
-    /// Forgets the lagged bounce light: the next frame is computed exactly.
-    pub fn reset_lag(&mut self) {
-        self.has_prev = false;
-    }
-
-    /// Relights for `light` on `gpu`: the direct light on the CPU, then the GPU passes
-    /// (submitted; with [`GpuRelighter::timed`] one stage at a time, each waited for). When the
-    /// light has not moved, nothing is recomputed.
+    /// Relights for `light` on `gpu`: the CPU's near-light inputs (or, without triangles, the
+    /// whole direct light) written, then every stage's passes submitted, waited for only when
+    /// [`GpuRelighter::timed`]. When the light has not moved, nothing is recomputed.
     pub fn relight_on(&mut self, gpu: &Gpu, light: &Light) -> Result<&Frame, GpuError> {
         if self.last.as_ref() == Some(light) && self.lag_settled {
             self.frame.reused = true;
@@ -802,7 +819,7 @@ impl<'r, 'a> GpuRelighter<'r, 'a> {
         times.direct_ms = ms(t);
         // Step 3, as CpuRelighter::relight orders it.
         let lag = self.lagged && self.has_prev;
-        self.lag_settled = !lag || self.lag_light.as_ref() == Some(light);
+        self.lag_settled = !lag || self.last.as_ref() == Some(light);
         let emission = || std::iter::once(&self.reconstruct).chain(&self.project_y);
         // With the lag, `S_0 e` on the level-0 rows and `T_fine (e + y)` on the finer rows with
         // the last frame's `y`; without, `S e` then the finer rows' `T_fine y` of its `y`.
@@ -875,9 +892,8 @@ impl<'r, 'a> GpuRelighter<'r, 'a> {
             times.transport_ms = ms(2, 3);
             times.flatten_ms = ms(3, 4);
         }
-        if self.fine_senders {
-            self.has_prev = self.lagged;
-        }
+        // `lagged` implies the fine bounces, whose emission this frame left for the next.
+        self.has_prev = self.lagged;
         self.frame = Frame {
             times,
             shadow_rays,
@@ -888,7 +904,6 @@ impl<'r, 'a> GpuRelighter<'r, 'a> {
             ..Frame::default()
         };
         self.last = Some(*light);
-        self.lag_light = Some(*light);
         Ok(&self.frame)
     }
 
@@ -896,6 +911,49 @@ impl<'r, 'a> GpuRelighter<'r, 'a> {
     pub fn flat_basis(&self) -> &FlatBasis {
         self.cpu.flat_basis()
     }
+}
+
+/// The reconstruction at the sender points (`R i` along their normals, the first half of the
+/// fine bounces' emission) from `i` into `emission`, over `cpu`'s precomputed basis values.
+fn reconstruction(
+    b: &mut Builder<'_>,
+    k: &Kernels,
+    cpu: &CpuRelighter<'_>,
+    i: &wgpu::Buffer,
+    emission: &wgpu::Buffer,
+) -> Result<Dispatch, GpuError> {
+    let r = cpu.feedback_op().parts();
+    let senders = r.normals.len() as u32;
+    let normals = b.storage("sender normals", r.normals.as_flattened())?;
+    let offsets = b.storage("reconstruction offsets", r.offsets)?;
+    let columns = b.storage("reconstruction columns", r.columns)?;
+    let weights = b.storage("reconstruction weights", r.weights)?;
+    Ok(b.dispatch(
+        &k.reconstruct,
+        &[&normals, &offsets, &columns, &weights, i, emission],
+        senders,
+        false,
+        [senders, 0, 0, 0, 0, 0, 0, 0],
+    ))
+}
+
+/// The query set of a timed frame's [`STAMPS`] timestamps and the buffer they resolve to,
+/// where the device writes timestamps between commands.
+fn timestamps(gpu: &Gpu) -> Option<(wgpu::QuerySet, wgpu::Buffer)> {
+    gpu.report.timestamps.then(|| {
+        let set = gpu.device.create_query_set(&wgpu::QuerySetDescriptor {
+            label: Some("relight stages"),
+            ty: wgpu::QueryType::Timestamp,
+            count: STAMPS,
+        });
+        let resolved = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("relight stage times"),
+            size: u64::from(STAMPS) * 8,
+            usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        (set, resolved)
+    })
 }
 
 fn encoder(gpu: &Gpu) -> wgpu::CommandEncoder {
