@@ -595,6 +595,8 @@ pub struct GpuRelighter<'r, 'a> {
     /// Step 1 on the GPU, where the scene has triangles.
     direct: Option<DirectPass>,
     senders: usize,
+    /// Stored sender slots: every one is applied (the GPU skips none).
+    slots: usize,
     points: usize,
     flat_points: usize,
     fine_senders: bool,
@@ -718,6 +720,7 @@ impl<'r, 'a> GpuRelighter<'r, 'a> {
             flatten,
             direct,
             senders,
+            slots: links.slots as usize,
             points,
             flat_points,
             fine_senders: cpu.fine_bounces,
@@ -898,7 +901,7 @@ impl<'r, 'a> GpuRelighter<'r, 'a> {
             times,
             shadow_rays,
             averaged_points,
-            senders_used: self.senders,
+            senders_used: self.slots,
             flat_rows: self.flat_points,
             reused: false,
             ..Frame::default()
