@@ -154,6 +154,7 @@ pub fn stats_json(file: &Path, file_bytes: u64, out: &BakeOutput) -> serde_json:
         "refinement_drop": out.contents.transport.as_ref().and_then(|t| t.drop.as_ref()),
         "bounce_method": out.contents.transport.as_ref().and_then(|t| t.bounces.as_ref()),
         "camera_check": out.contents.transport.as_ref().and_then(|t| t.camera_check.as_ref()),
+        "camera_blocks": out.contents.transport.as_ref().and_then(|t| t.camera_blocks.as_ref()),
         "error_estimate_total": out.contents.transport.as_ref().and_then(|t| {
             t.report
                 .as_ref()

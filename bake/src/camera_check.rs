@@ -37,13 +37,19 @@
 //! of the cells' differences (the cells are independent samples of the image, so it holds the
 //! primary rays' noise, the paths' and the per-pixel basis error's).
 //!
+//! The same cells by blocks of [`BLOCK`] x [`BLOCK`] ([`CameraBlocks`], the `TCBK` section):
+//! per block the ratio of the baked to the traced mean of every bounce, with its standard
+//! error from the block's cells (the ratio's first-order error), over the blocks whose traced
+//! mean exceeds [`LIT_BLOCK`] of the image's; the worst of them is where the bake is most off
+//! locally, a seam along a wall, say, that the image's mean hides.
+//!
 //! Each cell draws from its own stream `(seed, cell)` and the sums run in cell order, so the
 //! check is the same for any thread count.
 
 use glam::Vec3;
 use mlt_format::light_model::Light;
 use mlt_format::links::{Links, LINK_DIM};
-use mlt_format::meta::{CameraCheck, CameraInfo};
+use mlt_format::meta::{CameraBlocks, CameraCheck, CameraInfo};
 use mlt_format::pull_push::pull_push_levels;
 use mlt_format::IndexedBasis;
 use mlt_scenes::one_bounce::{OneBounce, PointLight};
@@ -58,6 +64,10 @@ use crate::rng::{Rng, Stream};
 pub const GRID_WIDTH: u32 = 160;
 /// Paths per cell for the traced light.
 pub const RAYS: u32 = 32;
+/// Side of the blocks of [`CameraBlocks`], in cells.
+pub const BLOCK: u32 = 16;
+/// A block counts (is *lit*) when its traced mean exceeds this share of the image's.
+pub const LIT_BLOCK: f64 = 0.1;
 /// The paths' bounce cap and the bounce from which roulette ends them (`view reference`'s
 /// defaults).
 const PATH_BOUNCES: (u32, u32) = (1024, 3);
@@ -164,7 +174,7 @@ pub fn camera_check(
     camera: &CameraInfo,
     (t, frame): (&ReceiverLinks, &[f32]),
     settings: CheckSettings,
-) -> Option<CameraCheck> {
+) -> Option<(CameraCheck, CameraBlocks)> {
     let (w, rays) = (settings.width, settings.rays);
     if w == 0 || rays == 0 || camera.width == 0 || camera.height == 0 {
         return None;
@@ -213,7 +223,75 @@ pub fn camera_check(
             Some([mean(t1), baked(&first), mean(ta), baked(frame)])
         })
         .collect();
-    Some(summarise(&cells, (w, h, rays)))
+    Some((summarise(&cells, (w, h, rays)), by_blocks(&cells, w, h)))
+}
+
+/// The cells (every bounce: traced at index 2, baked at 3) by blocks (module docs).
+fn by_blocks(cells: &[Cell], width: u32, height: u32) -> CameraBlocks {
+    let luma = |v: &[f64; 3]| (0..3).map(|k| LUMA[k] * v[k]).sum::<f64>();
+    let (w, h, b) = (width as usize, height as usize, BLOCK as usize);
+    let (cols, rows) = (w.div_ceil(b), h.div_ceil(b));
+    let value = |c: &Cell| c.map_or((0.0, 0.0), |v| (luma(&v[2]), luma(&v[3])));
+    let image_mean = cells.iter().map(|c| value(c).0).sum::<f64>() / cells.len().max(1) as f64;
+    let mut out = CameraBlocks {
+        block: BLOCK,
+        columns: cols as u32,
+        rows: rows as u32,
+        ratio_min: f64::INFINITY,
+        ..Default::default()
+    };
+    let mut worst = -1.0f64;
+    for by in 0..rows {
+        for bx in 0..cols {
+            let ids: Vec<usize> = (by * b..((by + 1) * b).min(h))
+                .flat_map(|y| (bx * b..((bx + 1) * b).min(w)).map(move |x| y * w + x))
+                .filter(|&k| k < cells.len())
+                .collect();
+            let n = ids.len() as f64;
+            if n < 2.0 {
+                continue;
+            }
+            let (mut t, mut k) = (0.0, 0.0);
+            for &i in &ids {
+                let (a, c) = value(&cells[i]);
+                t += a / n;
+                k += c / n;
+            }
+            if !(t > LIT_BLOCK * image_mean && t > 0.0) {
+                continue;
+            }
+            let ratio = k / t;
+            // The ratio's first-order standard error: that of the mean of `baked - ratio
+            // traced` over the cells, divided by the traced mean.
+            let var = ids
+                .iter()
+                .map(|&i| {
+                    let (a, c) = value(&cells[i]);
+                    (c - ratio * a) * (c - ratio * a)
+                })
+                .sum::<f64>()
+                / (n - 1.0);
+            out.lit += 1;
+            out.ratio_min = out.ratio_min.min(ratio);
+            out.ratio_max = out.ratio_max.max(ratio);
+            let off = if ratio > 0.0 {
+                ratio.ln().abs()
+            } else {
+                f64::INFINITY
+            };
+            if off > worst {
+                worst = off;
+                out.worst_column = bx as u32;
+                out.worst_row = by as u32;
+                out.worst_ratio = ratio;
+                out.worst_std_error = (var / n).sqrt() / t;
+            }
+        }
+    }
+    if out.lit == 0 {
+        out.ratio_min = 0.0;
+    }
+    out
 }
 
 /// The share one side of the cells lacks against the other (`traced` at index `a`, `baked` at
@@ -270,6 +348,48 @@ fn summarise(cells: &[Cell], (width, height, rays): (u32, u32, u32)) -> CameraCh
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn blocks_find_the_block_that_is_off_where_the_mean_is_right() {
+        // A 32 x 16 grid (two blocks): the left too bright by a third, the right too dark by
+        // a third, so that the image's mean is right; one cell missed.
+        let cell = |traced: f64, baked: f64| -> Cell {
+            Some([[0.0; 3], [0.0; 3], [traced; 3], [baked; 3]])
+        };
+        let mut cells: Vec<Cell> = (0..32 * 16)
+            .map(|k| {
+                if k % 32 < 16 {
+                    cell(3.0, 4.0)
+                } else {
+                    cell(3.0, 2.0)
+                }
+            })
+            .collect();
+        cells[40] = None;
+        let c = summarise(&cells, (32, 16, 1));
+        assert!(c.share_all.abs() < 0.01, "{}", c.share_all);
+        let b = by_blocks(&cells, 32, 16);
+        assert_eq!((b.columns, b.rows, b.lit), (2, 1, 2));
+        assert!((b.ratio_min - 2.0 / 3.0).abs() < 1e-12 && (b.ratio_max - 4.0 / 3.0).abs() < 1e-12);
+        // ln(2/3) is farther from 0 than ln(4/3): the right block is the worst.
+        assert_eq!((b.worst_column, b.worst_row), (1, 0));
+        assert!((b.worst_ratio - 2.0 / 3.0).abs() < 1e-12);
+        // Every cell of that block agrees: no spread, no error.
+        assert!(b.worst_std_error < 1e-12, "{}", b.worst_std_error);
+        // A dark block (below a tenth of the image's mean) does not count.
+        let dim: Vec<Cell> = (0..32 * 16)
+            .map(|k| {
+                if k % 32 < 16 {
+                    cell(3.0, 3.0)
+                } else {
+                    cell(0.01, 1.0)
+                }
+            })
+            .collect();
+        let b = by_blocks(&dim, 32, 16);
+        assert_eq!((b.lit, b.worst_column), (1, 0));
+        assert!((b.worst_ratio - 1.0).abs() < 1e-12);
+    }
 
     #[test]
     fn the_share_is_what_the_baked_light_lacks_and_its_error_shrinks_with_the_cells() {

@@ -7,6 +7,8 @@
 //!   distance test; [`placement`]: the hierarchy of levels and the `R_coarse` search;
 //! - [`gather`]: the hemispherical gather of Eq. 16, with [`sender_cells`] evaluating the
 //!   senders' weights at its hits from per-cell lists instead of R-tree queries;
+//! - [`occluders`]: the clip planes of the basis functions' supports, from a ring of rays along each
+//!   point's surface (so that no function reaches under a wall);
 //! - [`params`]: the bake's parameters, one struct for the command line, manifests and batch
 //!   jobs ([`BakeOptions`]), and their resolution;
 //! - [`pipeline`]: everything together, with statistics; [`report`]: human-readable output.
@@ -22,6 +24,7 @@ pub mod gather;
 pub mod grid;
 pub mod neumann;
 pub mod observer;
+pub mod occluders;
 pub mod output_check;
 pub mod params;
 pub mod path_bounces;

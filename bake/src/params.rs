@@ -190,6 +190,11 @@ pub struct BakeOptions {
     )]
     #[serde(default)]
     pub refine_off: Vec<RefineRule>,
+    /// Diagnostic: leave the supports unclipped at occluders (light then leaks
+    /// under thin walls; docs/design.md)
+    #[arg(long, hide = true)]
+    #[serde(default)]
+    pub no_support_clip: bool,
 }
 
 /// The rules either layer turns off, sorted and once each (like flags, on when either sets them).
@@ -240,6 +245,7 @@ impl BakeOptions {
             record_timings: self.record_timings || lower.record_timings,
             compress: self.compress || lower.compress,
             refine_off: refine_off_union(&self.refine_off, &lower.refine_off),
+            no_support_clip: self.no_support_clip || lower.no_support_clip,
         }
     }
 

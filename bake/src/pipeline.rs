@@ -18,6 +18,7 @@ use crate::candidates::CandidatePool;
 use crate::coverage::{coverage_fills, with_fills};
 use crate::error::BakeError;
 use crate::observer::Observer;
+use crate::occluders::clip_supports;
 use crate::params::{bounce_policy, manifest_options, resolve, resolve_transport, BakeOptions};
 use crate::placement::{find_coarse_radius, level_line, place, Coarse, LevelPlan};
 use crate::poisson::DartSettings;
@@ -127,6 +128,9 @@ fn key_of(
         // Only when set, so that the default bakes' keys stay what they were.
         description["refine_off"] = serde_json::json!(refine_off_names(opts));
     }
+    if opts.no_support_clip {
+        description["no_support_clip"] = serde_json::json!(true);
+    }
     xxhash_rust::xxh3::xxh3_64(description.to_string().as_bytes())
 }
 
@@ -186,11 +190,19 @@ pub fn bake_scene(
         &format!("{} triangles", scene.triangle_count()),
     );
 
+    // Every level: the senders, so that light is not emitted behind a wall, and the
+    // receivers, so that their reconstruction (and the flat basis built on them) does not
+    // show it there.
+    let clip_levels = if opts.no_support_clip {
+        0
+    } else {
+        params.levels as usize
+    };
     let basis = place_basis(
         scene,
         caster.as_ref(),
         &mut params,
-        coarse,
+        (coarse, clip_levels),
         obs,
         &mut warnings,
     )?;
@@ -381,7 +393,7 @@ fn place_basis(
     scene: &Scene,
     caster: &dyn RayCaster,
     params: &mut BasisParams,
-    coarse: Coarse,
+    (coarse, clip_levels): (Coarse, usize),
     obs: &dyn Observer,
     warnings: &mut Vec<String>,
 ) -> Result<PlacedBasis, BakeError> {
@@ -464,6 +476,7 @@ fn place_basis(
     let rtrees_s = t.elapsed().as_secs_f64();
     let rtree_nodes: u64 = ib.trees.iter().map(|t| t.node_count() as u64).sum();
     obs.done("r-trees", rtrees_s, &format!("{rtree_nodes} nodes"));
+    let ib = clip_sender_supports(ib, caster, clip_levels, &mut placement.levels, obs)?;
 
     if let Some(w) = light_warning(scene, caster) {
         obs.warn(&w);
@@ -654,6 +667,54 @@ fn cover_coarser_levels(
         ),
     );
     Ok(IndexedBasis::build(with_fills(&ib.basis, &fills))?)
+}
+
+/// The supports of levels `0..levels` clipped at the occluders their points see
+/// ([`crate::occluders`]); the coverage of the coarser levels filled again where the clipping
+/// opened holes (a floor by a wall whose coarse functions stood on the other side), and the
+/// planes computed again for the basis with the fills.
+fn clip_sender_supports(
+    ib: IndexedBasis,
+    caster: &dyn RayCaster,
+    levels: usize,
+    stats: &mut [LevelStats],
+    obs: &dyn Observer,
+) -> Result<IndexedBasis, BakeError> {
+    if levels == 0 {
+        return Ok(ib);
+    }
+    obs.stage("support clipping");
+    let t = Instant::now();
+    let clip = clip_supports(&ib, caster, levels);
+    let ib = ib.with_clip(clip)?;
+    let fills = coverage_fills(&ib);
+    let added: Vec<usize> = fills.iter().map(|f| f.len()).collect();
+    let ib = if added.iter().all(|&n| n == 0) {
+        ib
+    } else {
+        for (s, n) in stats.iter_mut().zip(&added) {
+            s.points += *n as u64;
+        }
+        for l in 1..stats.len() {
+            stats[l].growth = stats[l].points as f32 / stats[l - 1].points.max(1) as f32;
+        }
+        let ib = IndexedBasis::build(with_fills(&ib.basis, &fills))?;
+        let clip = clip_supports(&ib, caster, levels);
+        ib.with_clip(clip)?
+    };
+    let clipped_points = ib.basis.level_offsets[levels.min(ib.levels())] as usize;
+    let per_level: Vec<String> = added.iter().take(levels).map(|n| n.to_string()).collect();
+    obs.done(
+        "support clipping",
+        t.elapsed().as_secs_f64(),
+        &format!(
+            "{} of {clipped_points} supports clipped by {} planes; points added to cover, per level: {}",
+            ib.clip.clipped_points(),
+            ib.clip.planes.len(),
+            per_level.join(" / ")
+        ),
+    );
+    Ok(ib)
 }
 
 fn count_points_without_coarser_support(ib: &IndexedBasis) -> u64 {

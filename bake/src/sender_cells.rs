@@ -24,6 +24,26 @@ use mlt_format::rtree::LEAF_SIZE;
 use mlt_format::shepard::MIN_WEIGHT_SUM;
 use mlt_format::{Basis, IndexedBasis, RTree};
 
+/// Where a cell's list entry keeps, above the leaf's index, the masks of the leaf's items
+/// (one bit per item, [`LEAF_SIZE`] of them): whose weight may be non-zero in the cell, whose
+/// clip planes must be tested there, and whose planes cut the whole cell.
+const WEIGH_BITS: u32 = 32;
+const TEST_BITS: u32 = 40;
+const ALWAYS_BITS: u32 = 48;
+
+/// The item mask of a list entry at `bits`.
+#[inline(always)]
+fn lanes(entry: u64, bits: u32) -> u32 {
+    (entry >> bits) as u32 & 0xff
+}
+
+/// What a point's clip planes do in a cell ([`SenderCells::clip_in_box`]).
+enum ClipInBox {
+    Never,
+    Always,
+    Test,
+}
+
 /// Most cells along one axis (bounds the rounding of the cell index, see [`SenderCells::new`]).
 const MAX_AXIS_CELLS: usize = 1024;
 /// Most cells in all.
@@ -47,8 +67,9 @@ pub struct SenderCells<'a> {
     dims: [usize; 3],
     /// Per cell: `levels` end offsets (into the rest of the slice), then the leaves of every
     /// level, level by level: the leaf's index in `leaves` in the low 32 bits, and above them
-    /// a mask of the leaf's items whose weight may be non-zero in the cell (the others are
-    /// skipped).
+    /// the masks of the leaf's items whose weight may be non-zero in the cell (the others are
+    /// skipped), whose clip planes must be tested in it and whose planes cut all of it
+    /// ([`WEIGH_BITS`], [`TEST_BITS`], [`ALWAYS_BITS`]).
     cells: Vec<OnceLock<Box<[u64]>>>,
     /// Per sender level, its R-tree's leaves in node order, packed ([`Leaf`]).
     leaves: Vec<Vec<Leaf>>,
@@ -374,16 +395,38 @@ impl<'a> SenderCells<'a> {
             cell.levels + cell.list[l - 1] as usize
         };
         let end = cell.levels + cell.list[l] as usize;
-        let mut sum = 0.0f32;
-        for &entry in &cell.list[start..end] {
+        let entries = &cell.list[start..end];
+        let (mut sum, mut cut) = (0.0f32, false);
+        for &entry in entries {
             let leaf = &leaves[(entry & 0xffff_ffff) as usize];
             let (w, positive) = leaf.weights(x, n);
-            let mut mask = (entry >> 32) as u32 & positive & leaf.contains_mask(x);
+            let mut mask = lanes(entry, WEIGH_BITS) & positive & leaf.contains_mask(x);
+            let (test, always) = (lanes(entry, TEST_BITS), lanes(entry, ALWAYS_BITS));
             while mask != 0 {
                 let k = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
+                let j = leaf.j[k] as usize;
+                let bit = 1 << k;
+                if always & bit != 0 || (test & bit != 0 && self.ib.clip.cuts(j, x)) {
+                    cut = true;
+                    continue;
+                }
                 sum += w[k];
-                f(leaf.j[k] as usize, w[k]);
+                f(j, w[k]);
+            }
+        }
+        if sum == 0.0 && cut {
+            // As `IndexedBasis::for_each_weight`: unclipped where the clip leaves nothing.
+            for &entry in entries {
+                let leaf = &leaves[(entry & 0xffff_ffff) as usize];
+                let (w, positive) = leaf.weights(x, n);
+                let mut mask = lanes(entry, WEIGH_BITS) & positive & leaf.contains_mask(x);
+                while mask != 0 {
+                    let k = mask.trailing_zeros() as usize;
+                    mask &= mask - 1;
+                    sum += w[k];
+                    f(leaf.j[k] as usize, w[k]);
+                }
             }
         }
         sum
@@ -436,19 +479,66 @@ impl<'a> SenderCells<'a> {
             for &node in &leaves {
                 let first = tree.node_first[node as usize] as usize;
                 let count = tree.node_count[node as usize] as usize;
-                let mut mask = 0u64;
+                let (mut mask, mut test, mut always) = (0u64, 0u64, 0u64);
                 for (k, &j) in tree.items[first..first + count].iter().enumerate() {
                     if self.may_weigh(j as usize, qlo, qhi) {
                         mask |= 1 << k;
+                        match self.clip_in_box(j as usize, qlo, qhi) {
+                            ClipInBox::Never => {}
+                            ClipInBox::Always => always |= 1 << k,
+                            ClipInBox::Test => test |= 1 << k,
+                        }
                     }
                 }
                 if mask != 0 {
-                    out.push(self.leaf_of_node[l][node as usize] as u64 | mask << 32);
+                    out.push(
+                        self.leaf_of_node[l][node as usize] as u64
+                            | mask << WEIGH_BITS
+                            | test << TEST_BITS
+                            | always << ALWAYS_BITS,
+                    );
                 }
             }
             out[l] = (out.len() - self.levels) as u64;
         }
         out.into_boxed_slice()
+    }
+
+    /// Whether point `j`'s clip planes cut nothing in the box `[qlo, qhi]`, all of it, or
+    /// some of it (to be tested per point). A plane's three linear functions take their
+    /// extremes over the box at its corners; a margin over the rounding of their evaluation in
+    /// f32 makes "nothing" and "all" exact for the points of the box, so that the lists give the
+    /// same weights as [`IndexedBasis::for_each_weight`].
+    fn clip_in_box(&self, j: usize, qlo: [f32; 3], qhi: [f32; 3]) -> ClipInBox {
+        let planes = self.ib.clip.planes_of(j);
+        if planes.is_empty() {
+            return ClipInBox::Never;
+        }
+        let range = |f: &[f32; 4]| {
+            let (mut lo, mut hi) = (f[3] as f64, f[3] as f64);
+            let mut scale = (f[3] as f64).abs();
+            for a in 0..3 {
+                let (p, q) = (f[a] as f64 * qlo[a] as f64, f[a] as f64 * qhi[a] as f64);
+                lo += p.min(q);
+                hi += p.max(q);
+                scale += p.abs().max(q.abs());
+            }
+            let margin = 16.0 * f32::EPSILON as f64 * (scale + self.max_abs as f64);
+            (lo - margin, hi + margin)
+        };
+        let mut never = true;
+        for c in planes {
+            let (p, e0, e1) = (range(&c.plane), range(&c.edge0), range(&c.edge1));
+            if p.1 < 0.0 && e0.0 >= 0.0 && e1.0 >= 0.0 {
+                return ClipInBox::Always;
+            }
+            never &= p.0 >= 0.0 || e0.1 < 0.0 || e1.1 < 0.0;
+        }
+        if never {
+            ClipInBox::Never
+        } else {
+            ClipInBox::Test
+        }
     }
 
     /// False only when the weight of point `j` (Eq. 8) is zero everywhere in the box

@@ -8,8 +8,8 @@ use mlt_format::light::LightDesc;
 use mlt_format::light_model::Light;
 use mlt_format::links::{Links, SenderLinks, LINK_DIM};
 use mlt_format::meta::{
-    BounceMethod, CameraCheck, CameraInfo, ErrorEstimate, LeftOut, RefinementDrop, TransportMeta,
-    TransportParams, TransportReport, TransportStats, TransportTimings,
+    BounceMethod, CameraBlocks, CameraCheck, CameraInfo, ErrorEstimate, LeftOut, RefinementDrop,
+    TransportMeta, TransportParams, TransportReport, TransportStats, TransportTimings,
 };
 use mlt_format::{IndexedBasis, Transport};
 use mlt_scenes::RayCaster;
@@ -168,10 +168,15 @@ pub fn trim_levels(ib: &IndexedBasis, levels: usize) -> Result<IndexedBasis, Bak
         level_offsets: b.level_offsets[..=levels].to_vec(),
         disk_radii: b.disk_radii[..levels].to_vec(),
     };
-    Ok(IndexedBasis::from_parts(
-        basis,
-        ib.trees[..levels].to_vec(),
-    )?)
+    let clip = mlt_format::support_clip::SupportClip::from_rows(
+        (0..n.min(ib.clip.points())).map(|j| ib.clip.planes_of(j)),
+    );
+    let clip = if clip.is_empty() {
+        Default::default()
+    } else {
+        clip
+    };
+    Ok(IndexedBasis::from_parts(basis, ib.trees[..levels].to_vec())?.with_clip(clip)?)
 }
 
 /// Checks the transport parameters against the basis.
@@ -269,7 +274,7 @@ fn check_at_camera(
     scene: CheckScene<'_>,
     seed: u64,
     obs: &dyn Observer,
-) -> Option<CameraCheck> {
+) -> Option<(CameraCheck, CameraBlocks)> {
     let senders = ib.basis.level_offsets[sender_levels.min(ib.levels())] as usize;
     if t.emission.len() != 3 * senders {
         return None;
@@ -278,7 +283,7 @@ fn check_at_camera(
     let t0 = Instant::now();
     let settings = CheckSettings::new(seed);
     let frame = frame_coefficients(ib, links, (&t.emission, sender_levels), fine);
-    let c = camera_check(
+    let (c, blocks) = camera_check(
         ib,
         scene.caster,
         scene.light,
@@ -290,7 +295,7 @@ fn check_at_camera(
         "light checked at the camera",
         t0.elapsed().as_secs_f64(),
         &format!(
-            "{}x{} primary rays, {} paths each: the indirect light {:.2} % +- {:.2} % too {} against the traced one (the first bounce {:.2} % +- {:.2} % too {})",
+            "{}x{} primary rays, {} paths each: the indirect light {:.2} % +- {:.2} % too {} against the traced one (the first bounce {:.2} % +- {:.2} % too {}); {}",
             c.width,
             c.height,
             c.rays,
@@ -300,9 +305,46 @@ fn check_at_camera(
             100.0 * c.share.abs(),
             100.0 * c.std_error,
             too_dark_or_bright(c.share),
+            blocks_line(&blocks),
         ),
     );
-    Some(c)
+    Some((c, blocks))
+}
+
+/// The camera check by blocks in words: the range of the lit blocks' ratios and the worst.
+pub fn blocks_line(b: &CameraBlocks) -> String {
+    format!(
+        "by {}x{} blocks: baked / traced {:.2}-{:.2} over {} lit blocks, worst {:.2} +- {:.2} at block ({}, {}) of {}x{}",
+        b.block,
+        b.block,
+        b.ratio_min,
+        b.ratio_max,
+        b.lit,
+        b.worst_ratio,
+        b.worst_std_error,
+        b.worst_column,
+        b.worst_row,
+        b.columns,
+        b.rows
+    )
+}
+
+/// A block of the camera check whose baked light is off by more than this factor (either
+/// way) by more than twice its standard error draws a warning.
+pub const CAMERA_BLOCK_WARNING: f64 = 1.3;
+
+/// The warning when the camera check's worst block is off by more than
+/// [`CAMERA_BLOCK_WARNING`] (a local error: a seam, a leak, a hole).
+pub fn camera_block_warning(b: &CameraBlocks) -> Option<String> {
+    let r = b.worst_ratio;
+    let off = !(1.0 / CAMERA_BLOCK_WARNING..=CAMERA_BLOCK_WARNING).contains(&r);
+    let sure = (r - 1.0).abs() > 2.0 * b.worst_std_error;
+    (b.lit > 0 && off && sure).then(|| {
+        format!(
+            "at the scene's camera one part of the image is {:.2}x (+- {:.2}) the traced indirect light, block ({}, {}) of {}x{} blocks of {} cells: a local error the mean hides",
+            r, b.worst_std_error, b.worst_column, b.worst_row, b.columns, b.rows, b.block
+        )
+    })
 }
 
 /// The share of the indirect light at the scene's camera above which the bake warns: the 3 %
@@ -474,7 +516,7 @@ pub fn finish_transport(
     // (`mlt_relight::FineBounceOp::applies_to`: bounces on the coarsest receivers only, more
     // than one), so its frame, which the check compares, has them.
     let fine = !params.bounces_on_all_receivers && run.report.bounces >= 2;
-    let camera_check = check.and_then(|c| {
+    let checked = check.and_then(|c| {
         check_at_camera(
             ib,
             (&t, &p.links, fine),
@@ -498,7 +540,15 @@ pub fn finish_transport(
         obs.warn(&w);
         warnings.push(w);
     }
+    let (camera_check, camera_blocks) = match checked {
+        Some((c, b)) => (Some(c), Some(b)),
+        None => (None, None),
+    };
     if let Some(w) = camera_check.as_ref().and_then(camera_warning) {
+        obs.warn(&w);
+        warnings.push(w);
+    }
+    if let Some(w) = camera_blocks.as_ref().and_then(camera_block_warning) {
         obs.warn(&w);
         warnings.push(w);
     }
@@ -566,6 +616,7 @@ pub fn finish_transport(
                 max_vertex: traced,
             }),
             camera_check,
+            camera_blocks,
         },
         timings,
         warnings,

@@ -45,7 +45,8 @@
 //! `TSHD` (`level0_paths` and the owned rows); 1.8 the optional `TCAM` section (the bake's
 //! check of its indirect light at the scene's camera) and, in `TSHD` (its current layout), the
 //! representative emission sampled near the light as the viewer samples it (the same fields;
-//! a 1.7 shard's emission is the point samples, so 1.7 shards are refused). From 1.4 the bake
+//! a 1.7 shard's emission is the point samples, so 1.7 shards are refused); 1.9 the optional
+//! `CLIP` section (the supports' clip planes, read with the basis). From 1.4 the bake
 //! stores each level's points in Morton order; readers do not rely on it.
 
 use std::ops::Deref;
@@ -61,7 +62,7 @@ use crate::error::FormatError;
 pub const MAGIC: [u8; 8] = *b"\x89MLTBK\r\n";
 pub const VERSION_MAJOR: u16 = 1;
 /// The minor version this build writes (the module docs list what each one added).
-pub const VERSION_MINOR: u16 = 8;
+pub const VERSION_MINOR: u16 = 9;
 /// The first minor version with the `TSHD` layout this build reads.
 pub const SHARD_LAYOUT_MINOR: u16 = 8;
 pub const FIXED_HEADER: usize = 64;

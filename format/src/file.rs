@@ -21,11 +21,12 @@ use crate::flat_section::{
 };
 use crate::links::{ArchivedLinks, Links};
 use crate::meta::{
-    BounceMethod, CameraCheck, Meta, RefinementDrop, TransportMeta, TransportReport,
+    BounceMethod, CameraBlocks, CameraCheck, Meta, RefinementDrop, TransportMeta, TransportReport,
 };
 use crate::rtree::RTree;
 use crate::shard::ShardSection;
 use crate::shepard::IndexedBasis;
+use crate::support_clip::SupportClip;
 
 /// Section tags of format 1.0.
 pub const TAG_META: [u8; 4] = *b"META";
@@ -58,6 +59,12 @@ pub const TAG_BOUNCES: [u8; 4] = *b"TBNC";
 /// Added in format 1.8: the bake's check of its indirect light at the scene's camera
 /// ([`CameraCheck`]); optional.
 pub const TAG_CAMERA_CHECK: [u8; 4] = *b"TCAM";
+/// Added in format 1.9: the basis functions' supports clipped at occluders
+/// ([`crate::support_clip::SupportClip`]); optional, written when some point is clipped, so
+/// older files read with unclipped supports.
+pub const TAG_CLIP: [u8; 4] = *b"CLIP";
+/// Added in format 1.9: the camera check by blocks ([`CameraBlocks`]); optional.
+pub const TAG_CAMERA_BLOCKS: [u8; 4] = *b"TCBK";
 
 /// The minor versions (of [`VERSION_MAJOR`]) from which this build reads the section `tag`:
 /// any for the sections of a baked file, whose layout is fixed within the major version; for
@@ -108,6 +115,8 @@ pub struct Transport {
     pub bounces: Option<BounceMethod>,
     /// The `TCAM` section; `None` before 1.8 and in merges made without the scene.
     pub camera_check: Option<CameraCheck>,
+    /// The `TCBK` section; `None` before 1.9 and where `TCAM` is absent.
+    pub camera_blocks: Option<CameraBlocks>,
 }
 
 /// How to write.
@@ -161,6 +170,9 @@ fn sections(contents: &BakeContents) -> Vec<LazySection<'_>> {
             }),
         ),
     ];
+    if !contents.basis.clip.is_empty() {
+        out.push(lazy(TAG_CLIP, &contents.basis.clip));
+    }
     if let Some(t) = &contents.transport {
         out.push(lazy(TAG_TRANSPORT, &t.meta));
         out.push(lazy(TAG_LINKS, &t.links));
@@ -175,6 +187,9 @@ fn sections(contents: &BakeContents) -> Vec<LazySection<'_>> {
         }
         if let Some(c) = &t.camera_check {
             out.push(lazy(TAG_CAMERA_CHECK, c));
+        }
+        if let Some(c) = &t.camera_blocks {
+            out.push(lazy(TAG_CAMERA_BLOCKS, c));
         }
     }
     if let Some(sh) = &contents.shard {
@@ -436,15 +451,25 @@ impl BakedFile {
         self.section::<Meta>(TAG_META)
     }
 
-    /// The basis and its R-trees, validated (structure, finiteness, tree shape and bounds).
+    /// The basis and its R-trees, validated (structure, finiteness, tree shape and bounds),
+    /// with its supports' clip planes where the file has them.
     pub fn basis(&self) -> Result<IndexedBasis, FormatError> {
         let basis = self.section::<Basis>(TAG_BASIS)?;
         let trees = self.section::<RTrees>(TAG_RTREES)?;
-        IndexedBasis::from_parts(basis, trees.levels).map_err(|e| FormatError::BadSection {
-            path: self.path.clone(),
-            tag: "BASE".into(),
-            detail: e.to_string(),
-        })
+        let ib =
+            IndexedBasis::from_parts(basis, trees.levels).map_err(|e| FormatError::BadSection {
+                path: self.path.clone(),
+                tag: "BASE".into(),
+                detail: e.to_string(),
+            })?;
+        match self.optional_section::<SupportClip>(TAG_CLIP)? {
+            None => Ok(ib),
+            Some(clip) => ib.with_clip(clip).map_err(|e| FormatError::BadSection {
+                path: self.path.clone(),
+                tag: "CLIP".into(),
+                detail: e.to_string(),
+            }),
+        }
     }
 
     /// The `TRNS` section, if the file has one.
@@ -471,6 +496,11 @@ impl BakedFile {
     /// The `TCAM` section, if the file has one (format 1.8 and later, with transport).
     pub fn camera_check(&self) -> Result<Option<CameraCheck>, FormatError> {
         self.optional_section::<CameraCheck>(TAG_CAMERA_CHECK)
+    }
+
+    /// The `TCBK` section, if the file has one (format 1.9 and later, with `TCAM`).
+    pub fn camera_blocks(&self) -> Result<Option<CameraBlocks>, FormatError> {
+        self.optional_section::<CameraBlocks>(TAG_CAMERA_BLOCKS)
     }
 
     /// The `TSHD` section of a shard file, validated against the basis' size.
@@ -512,6 +542,7 @@ impl BakedFile {
                     drop: self.refinement_drop()?,
                     bounces: self.bounce_method()?,
                     camera_check: self.camera_check()?,
+                    camera_blocks: self.camera_blocks()?,
                 })
             }
         };
@@ -560,7 +591,7 @@ impl BakedFile {
             }
             return section
                 .flat_basis(hier, linked)
-                .map(StoredFlat::Stored)
+                .map(|f| StoredFlat::Stored(Box::new(f)))
                 .map_err(|detail| bad(TAG_FLAT2, detail));
         }
         // Format 1.5's section, read for its rule only: always an older rule than this build's.
@@ -635,6 +666,7 @@ impl BakedFile {
             refinement_drop: self.refinement_drop()?,
             bounce_method: self.bounce_method()?,
             camera_check: self.camera_check()?,
+            camera_blocks: self.camera_blocks()?,
         })
     }
 }
@@ -659,6 +691,8 @@ pub struct FileInfo {
     pub bounce_method: Option<BounceMethod>,
     /// The `TCAM` section (format 1.8 and later).
     pub camera_check: Option<CameraCheck>,
+    /// The `TCBK` section (format 1.9 and later).
+    pub camera_blocks: Option<CameraBlocks>,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -702,5 +736,10 @@ pub fn basis_archived_len(ib: &IndexedBasis) -> Result<u64, FormatError> {
     let trees = RTrees {
         levels: ib.trees.clone(),
     };
-    Ok(archived_len(&ib.basis)? + archived_len(&trees)?)
+    let clip = if ib.clip.is_empty() {
+        0
+    } else {
+        archived_len(&ib.clip)?
+    };
+    Ok(archived_len(&ib.basis)? + archived_len(&trees)? + clip)
 }

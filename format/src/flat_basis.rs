@@ -200,6 +200,7 @@ impl FlatBasis {
             ib: IndexedBasis {
                 basis: flat,
                 trees: vec![tree],
+                clip: source_clip(hier, &source),
             },
             source,
             normal_power: FLAT_NORMAL_POWER,
@@ -216,7 +217,8 @@ impl FlatBasis {
     ) -> Result<FlatBasis, FormatError> {
         let flat = Self::flat_level(hier, &source, radii)?;
         Ok(FlatBasis {
-            ib: IndexedBasis::from_parts(flat, vec![tree])?,
+            ib: IndexedBasis::from_parts(flat, vec![tree])?
+                .with_clip(source_clip(hier, &source))?,
             source,
             normal_power: FLAT_NORMAL_POWER,
         })
@@ -267,7 +269,7 @@ impl FlatBasis {
         let normals = &self.ib.basis.normals;
         let power = self.normal_power;
         let mut sum = 0.0f32;
-        self.ib.for_each_weight(0, x, n, |i, w| {
+        self.ib.for_each_clipped_weight(0, x, n, |i, w| {
             let m = normals[i];
             let w = w * flat_normal_factor(n[0] * m[0] + n[1] * m[1] + n[2] * m[2], power);
             sum += w;
@@ -356,7 +358,7 @@ impl FlatBasis {
     /// Number of flat functions with a positive weight at `(x, n)`.
     pub fn coverage(&self, x: [f32; 3], n: [f32; 3]) -> usize {
         let mut count = 0;
-        self.ib.for_each_weight(0, x, n, |_, _| count += 1);
+        self.ib.for_each_clipped_weight(0, x, n, |_, _| count += 1);
         count
     }
 }
@@ -474,6 +476,17 @@ fn density_radii(hier: &IndexedBasis, source: &[u32], rule: &FlatRule) -> Vec<f3
         .collect()
 }
 
+/// The clip planes of the flat points of `source`: their hierarchical points' (a flat radius
+/// never exceeds its point's hierarchical one, so the planes cover the flat support).
+fn source_clip(hier: &IndexedBasis, source: &[u32]) -> crate::support_clip::SupportClip {
+    if hier.clip.is_empty() {
+        return Default::default();
+    }
+    crate::support_clip::SupportClip::from_rows(
+        source.iter().map(|&j| hier.clip.planes_of(j as usize)),
+    )
+}
+
 /// The flat points of `source` with `radii`, and their R-tree: with the hierarchical radii,
 /// the candidate search of [`density_radii`] and [`fill_holes`].
 fn search_basis(hier: &IndexedBasis, source: &[u32], radii: Vec<f32>) -> (Basis, RTree) {
@@ -543,6 +556,7 @@ fn fill_holes(hier: &IndexedBasis, source: &[u32], radii: &mut [f32], rule: &Fla
     let flat_ib = IndexedBasis {
         basis: flat,
         trees: vec![flat_tree],
+        clip: source_clip(hier, source),
     };
     let grow: Vec<(u32, f32)> = (0..b.len())
         .into_par_iter()
@@ -551,12 +565,16 @@ fn fill_holes(hier: &IndexedBasis, source: &[u32], radii: &mut [f32], rule: &Fla
             (0..count).map(move |p| (probes[p], b.normals[j]))
         })
         .filter_map(|(x, n)| {
-            if flat_ib.weight_sum(0, x, n) >= rule.hole_weight {
+            if flat_ib.for_each_clipped_weight(0, x, n, |_, _| {}) >= rule.hole_weight {
                 return None;
             }
             let mut best = (f32::INFINITY, u32::MAX);
             tree.for_each_candidate(x, |q| {
                 let qu = q as usize;
+                if hier.clip.cuts(source[qu] as usize, x) {
+                    // Behind an occluder from that point: growing it would not cover `x`.
+                    return;
+                }
                 let d = poisson_distance(x, n, search.positions[qu], search.normals[qu]);
                 if d < best.0 && d <= search.radii[qu] {
                     best = (d, q);

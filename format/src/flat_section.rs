@@ -48,7 +48,7 @@ pub struct FlatSection {
 #[derive(Debug)]
 pub enum StoredFlat {
     /// The stored flat basis, checked against the file's basis and links.
-    Stored(FlatBasis),
+    Stored(Box<FlatBasis>),
     /// The file has neither section (written before format 1.5, or without transport).
     Absent,
     /// The section was built by another rule than this build's ([`FlatRule::current`]).

@@ -6,6 +6,7 @@
 //! - [`shepard`]: per-level Shepard basis (Eq. 2) and hierarchical reconstruction (Eq. 6);
 //!   [`support_average`]: a point light's irradiance averaged over a basis function (the
 //!   direct-light sample near the light, which the viewer and the bake's estimates share);
+//!   [`support_clip`]: supports clipped at the occluders their points see;
 //! - [`pull_push`]: coarse-to-fine projection `P` (Eq. 7) and pull-push `P-dagger`;
 //! - [`flat_basis`]: the single-level basis the viewer splats, stored in a file by
 //!   [`flat_section`]; [`flatten`]: resampling to a single level (the reference the viewer's precomputed
@@ -39,6 +40,7 @@ pub mod rtree;
 pub mod shard;
 pub mod shepard;
 pub mod support_average;
+pub mod support_clip;
 #[cfg(any(test, feature = "test-support"))]
 pub mod test_support;
 

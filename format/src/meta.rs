@@ -399,3 +399,27 @@ data! {
         pub std_error_all: f64,
     }
 }
+
+data! {
+    /// The `TCBK` section (since format 1.9, beside `TCAM`): the camera check's cells taken
+    /// by blocks of `block` x `block` cells, every bounce, so that a seam or a leak a few
+    /// pixels wide shows where the image's mean hides it. A block is *lit* when its traced
+    /// mean exceeds a tenth of the image's; the worst is the lit block whose baked mean is
+    /// farthest from the traced one in ratio.
+    pub struct CameraBlocks {
+        pub block: u32,
+        /// Blocks across and down the grid.
+        pub columns: u32,
+        pub rows: u32,
+        pub lit: u32,
+        /// The worst lit block (column, row from the top-left), its `Y(baked) / Y(traced)`,
+        /// and the standard error of that ratio from the block's cells.
+        pub worst_column: u32,
+        pub worst_row: u32,
+        pub worst_ratio: f64,
+        pub worst_std_error: f64,
+        /// The smallest and largest ratio over the lit blocks.
+        pub ratio_min: f64,
+        pub ratio_max: f64,
+    }
+}

@@ -5,6 +5,7 @@ use crate::basis::Basis;
 use crate::error::FormatError;
 use crate::kernel::weight;
 use crate::rtree::RTree;
+use crate::support_clip::SupportClip;
 
 /// Weight sums at or below this are treated as "no support" rather than divided by. Weights
 /// are products of a kernel and a squared cosine, both at most 1; a sum this small means the
@@ -20,6 +21,9 @@ pub const MAX_DIM: usize = 16;
 pub struct IndexedBasis {
     pub basis: Basis,
     pub trees: Vec<RTree>,
+    /// The functions' supports clipped at occluders ([`crate::support_clip`]); empty where
+    /// nothing is clipped. Every weight evaluation of this type leaves out what it cuts.
+    pub clip: SupportClip,
 }
 
 /// What a reconstruction found at the query point.
@@ -38,7 +42,11 @@ impl IndexedBasis {
         let trees = (0..basis.levels())
             .map(|l| RTree::build(&basis, basis.level_range(l)))
             .collect();
-        Ok(IndexedBasis { basis, trees })
+        Ok(IndexedBasis {
+            basis,
+            trees,
+            clip: SupportClip::default(),
+        })
     }
 
     /// Pairs a basis with trees read from a file, validating both.
@@ -55,7 +63,18 @@ impl IndexedBasis {
             t.validate(&basis, basis.level_range(l))
                 .map_err(|e| FormatError::InvalidBasis(format!("R-tree of level {l}: {e}")))?;
         }
-        Ok(IndexedBasis { basis, trees })
+        Ok(IndexedBasis {
+            basis,
+            trees,
+            clip: SupportClip::default(),
+        })
+    }
+
+    /// The basis with its supports clipped by `clip` (validated against the point count).
+    pub fn with_clip(mut self, clip: SupportClip) -> Result<IndexedBasis, FormatError> {
+        clip.validate(self.basis.len())?;
+        self.clip = clip;
+        Ok(self)
     }
 
     pub fn levels(&self) -> usize {
@@ -63,9 +82,50 @@ impl IndexedBasis {
     }
 
     /// Calls `f(j, w_j(x, n))` for every basis function of level `l` with a positive weight
-    /// (Eq. 8) at the surface point `(x, n)`; returns the sum of those weights.
+    /// (Eq. 8) at the surface point `(x, n)`, less those whose clipped support leaves `x` out
+    /// (unless that leaves none: a clip never opens a hole in a level, which would lose the
+    /// light there); returns the sum of those weights.
     #[inline]
     pub fn for_each_weight(
+        &self,
+        l: usize,
+        x: [f32; 3],
+        n: [f32; 3],
+        mut f: impl FnMut(usize, f32),
+    ) -> f32 {
+        let b = &self.basis;
+        let (mut sum, mut cut) = (0.0f32, false);
+        self.trees[l].for_each_candidate(x, |j| {
+            let j = j as usize;
+            let w = weight(x, n, b.positions[j], b.normals[j], b.radii[j]);
+            if w > 0.0 {
+                if self.clip.cuts(j, x) {
+                    cut = true;
+                } else {
+                    sum += w;
+                    f(j, w);
+                }
+            }
+        });
+        if sum == 0.0 && cut {
+            // The clip would leave the level without support at `x`: unclipped there.
+            self.trees[l].for_each_candidate(x, |j| {
+                let j = j as usize;
+                let w = weight(x, n, b.positions[j], b.normals[j], b.radii[j]);
+                if w > 0.0 {
+                    sum += w;
+                    f(j, w);
+                }
+            });
+        }
+        sum
+    }
+
+    /// [`IndexedBasis::for_each_weight`] without the fallback: where the clip cuts every
+    /// function of the level, none is called and the sum is 0 (the flat basis, whose splat
+    /// on the GPU sees one function at a time, evaluates this).
+    #[inline]
+    pub fn for_each_clipped_weight(
         &self,
         l: usize,
         x: [f32; 3],
@@ -77,7 +137,7 @@ impl IndexedBasis {
         self.trees[l].for_each_candidate(x, |j| {
             let j = j as usize;
             let w = weight(x, n, b.positions[j], b.normals[j], b.radii[j]);
-            if w > 0.0 {
+            if w > 0.0 && !self.clip.cuts(j, x) {
                 sum += w;
                 f(j, w);
             }

@@ -121,7 +121,7 @@ impl<'a> SupportAverage<'a> {
         let b = &self.ib.basis;
         let (xa, na) = (x.to_array(), n.to_array());
         let w = weight(xa, na, b.positions[j], b.normals[j], b.radii[j]);
-        if w <= 0.0 {
+        if w <= 0.0 || self.ib.clip.cuts(j, xa) {
             return 0.0;
         }
         let sum = self.ib.weight_sum(level, xa, na);

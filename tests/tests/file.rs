@@ -19,6 +19,10 @@ fn round_trip_through_disk_with_and_without_compression() {
         assert_eq!(info.points, out.contents.basis.basis.len() as u64);
         assert_eq!(info.levels.len(), 2);
         assert!(info.sections.iter().all(|s| s.compressed == compress));
+        // The box's blocks clip the floor's supports: the planes travel with the basis
+        // (compared above).
+        assert!(!out.contents.basis.clip.is_empty());
+        assert!(info.sections.iter().any(|s| s.tag == "CLIP"));
         // No temporary file is left behind.
         let leftovers: Vec<_> = std::fs::read_dir(&*dir)
             .unwrap()

@@ -86,7 +86,9 @@ fn the_estimate_of_the_light_refinement_drops_is_within_a_factor_of_two() {
         .and_then(|v| v.parse().ok())
     {
         Some(e) => vec![e],
-        None => vec![0.1, 0.2],
+        // 0.15 rather than 0.1 since the supports are clipped at occluders: at five levels
+        // epsilon 0.1 then drops only 1.2 % of the uniform light, too little to measure.
+        None => vec![0.15, 0.2],
     };
     for levels in [4u32, 5] {
         for &eps in &epsilons {

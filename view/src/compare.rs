@@ -9,6 +9,12 @@
 //!   shadow, where a relative error means nothing, are left out);
 //! - ratio of means: `mean L_t / mean L_r` (1 when the energy is right).
 //!
+//! - by blocks of [`BLOCK`] x [`BLOCK`] pixels (images only, [`Blocks`]): the relative RMSE
+//!   of the block means, `sqrt(mean_b (m_t,b − m_r,b)²) / mean L_r`, and the smallest and the
+//!   largest ratio `m_t,b / m_r,b` over the lit blocks (`m_r,b > LIT_FRACTION · mean L_r`): a
+//!   seam or a leak a few pixels wide shows there while the image's means hide it, and the
+//!   reference's noise mostly averages out.
+//!
 //! The reference's own noise gives a floor under the first two: with `ν` its per-pixel noise
 //! (the signed `(A − B)/2` of `reference_noise.exr`, or a probe's standard error `σ`), an exact
 //! test image would still show a relative RMSE of `sqrt(mean ν²) / mean L_r` and a mean
@@ -21,6 +27,75 @@ use crate::images::{luminance, ImageError, RgbImage};
 
 /// Pixels whose reference luminance is below this fraction of the mean are not *lit*.
 pub const LIT_FRACTION: f64 = 0.01;
+
+/// Side of the blocks of [`Blocks`], in pixels.
+pub const BLOCK: u32 = 16;
+
+/// The error by blocks of [`BLOCK`] x [`BLOCK`] pixels (module docs); the last row and column
+/// of blocks may be narrower.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct Blocks {
+    pub relative_rmse: f64,
+    pub ratio_min: f64,
+    pub ratio_max: f64,
+    pub blocks: usize,
+    pub lit: usize,
+    /// The largest pixel of the test and of the reference (a sealed room's leak shows in the
+    /// first where the second is black).
+    pub test_max: f64,
+    pub reference_max: f64,
+}
+
+/// [`Blocks`] of the luminances `reference` and `test` of a `width` x `height` image.
+pub fn blocks(reference: &[f64], test: &[f64], width: u32, height: u32) -> Blocks {
+    let (w, h) = (width as usize, height as usize);
+    let n = (w * h).min(reference.len()).min(test.len());
+    let mean = reference[..n].iter().sum::<f64>() / n.max(1) as f64;
+    let b = BLOCK as usize;
+    let (bw, bh) = (w.div_ceil(b), h.div_ceil(b));
+    let mut out = Blocks {
+        relative_rmse: 0.0,
+        ratio_min: f64::INFINITY,
+        ratio_max: 0.0,
+        blocks: bw * bh,
+        lit: 0,
+        test_max: test[..n].iter().fold(0.0f64, |m, &v| m.max(v)),
+        reference_max: reference[..n].iter().fold(0.0f64, |m, &v| m.max(v)),
+    };
+    let mut se = 0.0;
+    for by in 0..bh {
+        for bx in 0..bw {
+            let (mut r, mut t, mut count) = (0.0, 0.0, 0usize);
+            for y in by * b..((by + 1) * b).min(h) {
+                for x in bx * b..((bx + 1) * b).min(w) {
+                    let k = y * w + x;
+                    if k < n {
+                        r += reference[k];
+                        t += test[k];
+                        count += 1;
+                    }
+                }
+            }
+            if count == 0 {
+                continue;
+            }
+            let (r, t) = (r / count as f64, t / count as f64);
+            se += (t - r) * (t - r);
+            if r > LIT_FRACTION * mean && r > 0.0 {
+                out.lit += 1;
+                out.ratio_min = out.ratio_min.min(t / r);
+                out.ratio_max = out.ratio_max.max(t / r);
+            }
+        }
+    }
+    if out.lit == 0 {
+        out.ratio_min = 0.0;
+    }
+    if mean > 0.0 && out.blocks > 0 {
+        out.relative_rmse = (se / out.blocks as f64).sqrt() / mean;
+    }
+    out
+}
 
 /// What can go wrong comparing.
 #[derive(Debug, thiserror::Error)]
@@ -171,6 +246,9 @@ pub struct DirComparison {
     pub test_dir: PathBuf,
     pub indirect: Metrics,
     pub final_image: Metrics,
+    /// The indirect and final images' error by blocks.
+    pub indirect_blocks: Blocks,
+    pub final_blocks: Blocks,
     /// `reference.json`'s noise block, if present.
     pub reference_noise: Option<serde_json::Value>,
 }
@@ -180,6 +258,7 @@ pub struct DirComparison {
 /// `{indirect,final}.exr`), using `REF_DIR/reference_noise.exr` for the noise floor if present.
 pub fn compare_dirs(reference_dir: &Path, test_dir: &Path) -> Result<DirComparison, CompareError> {
     let mut out = Vec::new();
+    let mut by_blocks = Vec::new();
     let noise_path = reference_dir.join("reference_noise.exr");
     let noise = if noise_path.is_file() {
         Some(read(&noise_path, "the reference's noise image")?)
@@ -214,6 +293,7 @@ pub fn compare_dirs(reference_dir: &Path, test_dir: &Path) -> Result<DirComparis
             }
         }
         out.push(compare_images(&r, &t, noise.as_ref()));
+        by_blocks.push(blocks(&lum(&r), &lum(&t), r.width, r.height));
     }
     let reference_noise = std::fs::read_to_string(reference_dir.join("reference.json"))
         .ok()
@@ -224,6 +304,8 @@ pub fn compare_dirs(reference_dir: &Path, test_dir: &Path) -> Result<DirComparis
         test_dir: test_dir.to_path_buf(),
         indirect: out[0],
         final_image: out[1],
+        indirect_blocks: by_blocks[0],
+        final_blocks: by_blocks[1],
         reference_noise,
     })
 }
@@ -376,6 +458,14 @@ pub fn compare_probe_csv(reference: &Path, test: &Path) -> Result<ProbeCompariso
     })
 }
 
+/// One line for the measures by blocks.
+pub fn format_blocks(name: &str, b: &Blocks) -> String {
+    format!(
+        "{name:>8} by {BLOCK}x{BLOCK} blocks: relative RMSE {:.4}, block ratios {:.3}-{:.3} ({} of {} blocks lit); largest pixel {:.4e} (reference {:.4e})",
+        b.relative_rmse, b.ratio_min, b.ratio_max, b.lit, b.blocks, b.test_max, b.reference_max
+    )
+}
+
 /// One line of text per measure.
 pub fn format_metrics(name: &str, m: &Metrics) -> String {
     let floor = match (m.noise_relative_rmse, m.noise_mean_relative_error_lit) {
@@ -393,6 +483,35 @@ pub fn format_metrics(name: &str, m: &Metrics) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn blocks_see_a_seam_that_the_means_hide() {
+        // A 32x32 image of 1s; the test is 3x too bright in one 16x16 block and 0.5x in
+        // another, so that the means nearly agree.
+        let r = vec![1.0f64; 32 * 32];
+        let mut t = r.clone();
+        for y in 0..16 {
+            for x in 0..16 {
+                t[y * 32 + x] = 3.0;
+                t[(y + 16) * 32 + x + 16] = 0.5;
+            }
+        }
+        let b = blocks(&r, &t, 32, 32);
+        assert_eq!((b.blocks, b.lit), (4, 4));
+        assert_eq!((b.ratio_min, b.ratio_max), (0.5, 3.0));
+        let want = ((4.0 + 0.25) / 4.0f64).sqrt();
+        assert!(
+            (b.relative_rmse - want).abs() < 1e-12,
+            "{}",
+            b.relative_rmse
+        );
+        // Partial blocks at the edges count as blocks; a black reference has no lit block.
+        let b = blocks(&vec![1.0; 20 * 17], &vec![1.0; 20 * 17], 20, 17);
+        assert_eq!((b.blocks, b.lit, b.relative_rmse), (4, 4, 0.0));
+        let b = blocks(&[0.0; 4], &[1.0, 2.0, 0.5, 0.0], 2, 2);
+        assert_eq!((b.lit, b.ratio_min, b.relative_rmse), (0, 0.0, 0.0));
+        assert_eq!((b.test_max, b.reference_max), (2.0, 0.0));
+    }
 
     #[test]
     fn metrics_of_a_scaled_image() {

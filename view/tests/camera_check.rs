@@ -24,6 +24,16 @@ fn the_camera_check_traces_what_the_reference_renders_through_the_camera() {
         .unwrap()
         .expect("the bake checks its first bounce at the camera");
     assert!(check.cells_hit > 0 && check.std_error > 0.0);
+    // Its blocks (`TCBK`): the camera's 160-cell grid in 16-cell blocks, the worst among the
+    // lit ones and within their range.
+    let blocks = file.camera_blocks().unwrap().expect("the check by blocks");
+    assert_eq!(
+        (blocks.block, blocks.columns),
+        (16, check.width.div_ceil(16))
+    );
+    assert!(blocks.lit > 0 && blocks.lit <= blocks.columns * blocks.rows);
+    assert!(blocks.ratio_min <= blocks.worst_ratio && blocks.worst_ratio <= blocks.ratio_max);
+    assert!(blocks.worst_std_error > 0.0);
     // The reference at a small image of the camera's aspect.
     let mut info = meta.camera.clone();
     let scale = 48.0 / info.width.max(info.height) as f32;

@@ -66,7 +66,7 @@ fn a_bake_stores_the_flat_basis_and_the_viewer_reads_it() {
     let built = FlatBasis::build(&contents.basis, Some(&linked)).unwrap();
     assert!(!built.is_empty() && built.len() < contents.basis.basis.len());
     match file.flat_basis(&contents.basis, &linked).unwrap() {
-        StoredFlat::Stored(stored) => assert_eq!(stored, built),
+        StoredFlat::Stored(stored) => assert_eq!(*stored, built),
         other => panic!("no stored flat basis: {other:?}"),
     }
 

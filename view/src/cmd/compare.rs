@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use clap::Args;
 use mlt_view::breakdown::{by_brightness, by_tiles, format_parts, Part};
-use mlt_view::compare::{compare_dirs, compare_probe_csv, format_metrics, Metrics};
+use mlt_view::compare::{compare_dirs, compare_probe_csv, format_blocks, format_metrics, Metrics};
 use mlt_view::images::{luminance, RgbImage};
 
 /// Compares images (or probes) against the brute-force reference.
@@ -84,6 +84,8 @@ pub fn run(cli: &CompareArgs) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
         print_metrics(cli, "radiance", &c.indirect, &c.final_image);
+        println!("{}", format_blocks("indirect", &c.indirect_blocks));
+        println!("{}", format_blocks("final", &c.final_blocks));
         if let Some(n) = &c.reference_noise {
             println!("reference noise (reference.json): {n}");
         }

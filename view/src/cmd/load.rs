@@ -141,7 +141,7 @@ fn stored_flat_basis(
 ) -> Result<Option<FlatBasis>> {
     let linked = links.linked_flags(ib.basis.len());
     Ok(match file.flat_basis(ib, &linked)? {
-        StoredFlat::Stored(flat) => Some(flat),
+        StoredFlat::Stored(flat) => Some(*flat),
         StoredFlat::Absent => None,
         StoredFlat::OtherRule(rule) => {
             eprintln!(

@@ -136,7 +136,13 @@ impl Renderer {
             wgpu::TextureFormat::Rgba16Float
         };
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let scene = SceneBuffers::new(device, mesh, basis, levels, flat.normal_power);
+        let scene = SceneBuffers::new(
+            device,
+            mesh,
+            (basis, &flat.ib.clip),
+            levels,
+            flat.normal_power,
+        );
         let renderer = Renderer {
             point_count: basis.len(),
             levels: levels.map_or(basis.levels(), |l| {

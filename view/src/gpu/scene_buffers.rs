@@ -1,9 +1,10 @@
 //! The buffers several passes bind: the scene's vertices, the per-frame globals, the flat
-//! basis's points (position, flat radius, normal), their flat coefficients and the list of
-//! points that survive culling.
+//! basis's points (position, flat radius, normal), their supports' clip planes, their flat
+//! coefficients and the list of points that survive culling.
 
 use bytemuck::{Pod, Zeroable};
 use mlt_format::links::LINK_DIM;
+use mlt_format::support_clip::SupportClip;
 use mlt_format::Basis;
 use wgpu::util::DeviceExt;
 
@@ -16,9 +17,19 @@ use super::uniforms::Globals;
 struct PointGpu {
     pos_r: [f32; 4],
     normal_level: [f32; 4],
-    /// x: the exponent of the flat weights' normal factor (`FlatBasis::normal_power`); yzw:
+    /// x: the exponent of the flat weights' normal factor (`FlatBasis::normal_power`); y, z:
+    /// the bits of the `u32` index of the point's first clip plane and of their count; w:
     /// unused padding.
     weight_params: [f32; 4],
+}
+
+/// A clip plane as `mlt_format::support_clip::ClipPlane`, three `vec4`s.
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct ClipPlaneGpu {
+    plane: [f32; 4],
+    edge0: [f32; 4],
+    edge1: [f32; 4],
 }
 
 /// The scene and the basis on the GPU.
@@ -33,6 +44,8 @@ pub struct SceneBuffers {
     pub globals_bg: wgpu::BindGroup,
     /// One `PointGpu` per flat basis point.
     pub points: wgpu::Buffer,
+    /// The flat points' clip planes (`ClipPlaneGpu`; one zero plane when there are none).
+    pub clip_planes: wgpu::Buffer,
     /// `LINK_DIM` flat coefficients per flat basis point.
     pub coefficients: wgpu::Buffer,
     /// Indices of the points to splat.
@@ -42,11 +55,12 @@ pub struct SceneBuffers {
 impl SceneBuffers {
     /// The buffers of `mesh` and `basis`; each point's level is `levels[j]` when given (a flat
     /// basis' points: the level of the hierarchical point each one is), else its level in
-    /// `basis`. `normal_power` is the exponent of the flat weights' normal factor.
+    /// `basis`. `normal_power` is the exponent of the flat weights' normal factor; `clip`
+    /// holds the points' clip planes.
     pub fn new(
         device: &wgpu::Device,
         mesh: &GpuMesh,
-        basis: &Basis,
+        (basis, clip): (&Basis, &SupportClip),
         levels: Option<&[u32]>,
         normal_power: f32,
     ) -> SceneBuffers {
@@ -95,7 +109,8 @@ impl SceneBuffers {
             globals,
             globals_layout,
             globals_bg,
-            points: point_buffer(device, basis, levels, normal_power),
+            points: point_buffer(device, basis, clip, levels, normal_power),
+            clip_planes: clip_buffer(device, clip),
             coefficients,
             visible,
         }
@@ -105,6 +120,7 @@ impl SceneBuffers {
 fn point_buffer(
     device: &wgpu::Device,
     basis: &Basis,
+    clip: &SupportClip,
     levels: Option<&[u32]>,
     normal_power: f32,
 ) -> wgpu::Buffer {
@@ -113,10 +129,20 @@ fn point_buffer(
             let p = basis.positions[j];
             let nn = basis.normals[j];
             let level = levels.map_or(basis.level_of(j), |l| l[j] as usize);
+            let (first, count) = if j + 1 < clip.offsets.len() {
+                (clip.offsets[j], clip.offsets[j + 1] - clip.offsets[j])
+            } else {
+                (0, 0)
+            };
             PointGpu {
                 pos_r: [p[0], p[1], p[2], basis.radii[j]],
                 normal_level: [nn[0], nn[1], nn[2], level as f32],
-                weight_params: [normal_power, 0.0, 0.0, 0.0],
+                weight_params: [
+                    normal_power,
+                    f32::from_bits(first),
+                    f32::from_bits(count),
+                    0.0,
+                ],
             }
         })
         .collect();
@@ -128,6 +154,26 @@ fn point_buffer(
     device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
         label: Some("basis points"),
         contents: &point_bytes,
+        usage: wgpu::BufferUsages::STORAGE,
+    })
+}
+
+fn clip_buffer(device: &wgpu::Device, clip: &SupportClip) -> wgpu::Buffer {
+    let mut planes: Vec<ClipPlaneGpu> = clip
+        .planes
+        .iter()
+        .map(|p| ClipPlaneGpu {
+            plane: p.plane,
+            edge0: p.edge0,
+            edge1: p.edge1,
+        })
+        .collect();
+    if planes.is_empty() {
+        planes.push(ClipPlaneGpu::zeroed());
+    }
+    device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some("clip planes"),
+        contents: bytemuck::cast_slice(&planes),
         usage: wgpu::BufferUsages::STORAGE,
     })
 }

@@ -6,7 +6,9 @@
 //! fragment blends 5 floats, not 10), and `w_j level_j` for the level view. The
 //! footprint lies at the depth of the support sphere's nearest point and is depth-tested
 //! (without writing) against the G-buffer's depth: where the visible surface is in front of
-//! the whole support, the pixel is rejected before the weight is evaluated.
+//! the whole support, the pixel is rejected before the weight is evaluated. A function whose
+//! support is clipped at occluders (`mlt_format::support_clip`) skips the pixels its planes
+//! cut, as the CPU's evaluation of the flat basis does.
 
 use wgpu::ShaderStages as Stages;
 
@@ -33,6 +35,7 @@ impl SplatPass {
             Slot::Storage(Stages::VERTEX),
             Slot::Storage(Stages::VERTEX),
             Slot::Textures(2),
+            Slot::Storage(Stages::FRAGMENT),
         ];
         let binding = TargetBinding::new(device, "splat", &slots);
         let module = module(device, "splat", SPLAT);
@@ -60,6 +63,7 @@ impl SplatPass {
         ];
         let mut resources: Vec<_> = buffers.iter().map(|b| b.as_entire_binding()).collect();
         resources.extend([&t.position, &t.normal].map(Target::binding));
+        resources.push(scene.clip_planes.as_entire_binding());
         self.binding.bind(device, &resources);
     }
 

@@ -9,15 +9,25 @@
 // The vertex shader reads the function's point and coefficients and hands them to its
 // fragments as flat varyings, so that the fragment shader reads only the G-buffer: a software
 // rasteriser runs the fragment shader a dozen times per pixel, and storage-buffer reads there
-// cost it three times the rest of the pass (llvmpipe).
+// cost it three times the rest of the pass (llvmpipe). Only a function clipped at occluders
+// (`mlt_format::support_clip`) reads its planes there, and skips the pixels they cut.
 
 struct Point {
     // xyz: position; w: support radius r_j.
     pos_r: vec4<f32>,
     // xyz: normal; w: level.
     normal_level: vec4<f32>,
-    // x: the exponent p of the flat weights' normal factor; yzw: unused.
+    // x: the exponent p of the flat weights' normal factor; y, z: the bits of the u32 index
+    // of the first clip plane and of their count; w: unused.
     weight_params: vec4<f32>,
+};
+
+// mlt_format::support_clip::ClipPlane: x is cut when plane . (x, 1) < 0, edge0 . (x, 1) >= 0
+// and edge1 . (x, 1) >= 0.
+struct ClipPlane {
+    plane: vec4<f32>,
+    edge0: vec4<f32>,
+    edge1: vec4<f32>,
 };
 
 @group(0) @binding(0) var<uniform> g: Globals;
@@ -26,6 +36,7 @@ struct Point {
 @group(0) @binding(3) var<storage, read> visible: array<u32>;
 @group(0) @binding(4) var gbuf_position: texture_2d<f32>;
 @group(0) @binding(5) var gbuf_normal: texture_2d<f32>;
+@group(0) @binding(6) var<storage, read> clip_planes: array<ClipPlane>;
 
 struct VsOut {
     @builtin(position) clip: vec4<f32>,
@@ -36,6 +47,8 @@ struct VsOut {
     @location(2) @interpolate(flat) red: vec4<f32>,
     @location(3) @interpolate(flat) green: vec3<f32>,
     @location(4) @interpolate(flat) blue: vec3<f32>,
+    // The first clip plane and their count.
+    @location(5) @interpolate(flat) clip_range: vec2<u32>,
 };
 
 @vertex
@@ -116,6 +129,7 @@ fn vs(@builtin(vertex_index) vi: u32, @builtin(instance_index) ii: u32) -> VsOut
     out.red = vec4<f32>(coeffs[b], coeffs[b + 1u], coeffs[b + 2u], p.weight_params.x);
     out.green = vec3<f32>(coeffs[b + 3u], coeffs[b + 4u], coeffs[b + 5u]);
     out.blue = vec3<f32>(coeffs[b + 6u], coeffs[b + 7u], coeffs[b + 8u]);
+    out.clip_range = vec2<u32>(bitcast<u32>(p.weight_params.y), bitcast<u32>(p.weight_params.z));
     return out;
 }
 
@@ -137,6 +151,13 @@ fn fs(v: VsOut) -> AccOut {
     let w = flat_weight(x.xyz, n, v.pos_r.xyz, v.normal_level.xyz, v.pos_r.w, v.red.w);
     if w <= 0.0 {
         discard;
+    }
+    let xh = vec4<f32>(x.xyz, 1.0);
+    for (var k = v.clip_range.x; k < v.clip_range.x + v.clip_range.y; k++) {
+        let c = clip_planes[k];
+        if dot(c.plane, xh) < 0.0 && dot(c.edge0, xh) >= 0.0 && dot(c.edge1, xh) >= 0.0 {
+            discard;
+        }
     }
     let e = vec3<f32>(dot(n, v.red.xyz), dot(n, v.green), dot(n, v.blue));
     var out: AccOut;
