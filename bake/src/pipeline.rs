@@ -651,12 +651,7 @@ fn cover_coarser_levels(
     if added.iter().all(|&n| n == 0) {
         return Ok(ib);
     }
-    for (s, n) in levels.iter_mut().zip(&added) {
-        s.points += *n as u64;
-    }
-    for l in 1..levels.len() {
-        levels[l].growth = levels[l].points as f32 / levels[l - 1].points.max(1) as f32;
-    }
+    count_fills(levels, &added);
     let per_level: Vec<String> = added.iter().map(|n| n.to_string()).collect();
     obs.done(
         "coverage",
@@ -692,12 +687,7 @@ fn clip_sender_supports(
     let ib = if added.iter().all(|&n| n == 0) {
         ib
     } else {
-        for (s, n) in stats.iter_mut().zip(&added) {
-            s.points += *n as u64;
-        }
-        for l in 1..stats.len() {
-            stats[l].growth = stats[l].points as f32 / stats[l - 1].points.max(1) as f32;
-        }
+        count_fills(stats, &added);
         let ib = IndexedBasis::build(with_fills(&ib.basis, &fills))?;
         let clip = clip_supports(&ib, caster, levels);
         ib.with_clip(clip)?
@@ -715,6 +705,16 @@ fn clip_sender_supports(
         ),
     );
     Ok(ib)
+}
+
+/// The level statistics with `added` coverage fills per level: point counts and growths.
+fn count_fills(levels: &mut [LevelStats], added: &[usize]) {
+    for (s, n) in levels.iter_mut().zip(added) {
+        s.points += *n as u64;
+    }
+    for l in 1..levels.len() {
+        levels[l].growth = levels[l].points as f32 / levels[l - 1].points.max(1) as f32;
+    }
 }
 
 fn count_points_without_coarser_support(ib: &IndexedBasis) -> u64 {

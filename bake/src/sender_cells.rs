@@ -396,18 +396,43 @@ impl<'a> SenderCells<'a> {
         };
         let end = cell.levels + cell.list[l] as usize;
         let entries = &cell.list[start..end];
+        let (sum, cut) = Self::entry_weights(leaves, entries, self.ib, x, n, true, &mut f);
+        if sum == 0.0 && cut {
+            // As `IndexedBasis::for_each_weight`: unclipped where the clip leaves nothing.
+            return Self::entry_weights(leaves, entries, self.ib, x, n, false, &mut f).0;
+        }
+        sum
+    }
+
+    /// Calls `f(j, w_j)` for the items of the list `entries` with a positive weight at
+    /// `(x, n)`, less those the clip cuts when `clipped`; returns their weights' sum and
+    /// whether the clip cut any.
+    #[inline(always)]
+    fn entry_weights(
+        leaves: &[Leaf],
+        entries: &[u64],
+        ib: &IndexedBasis,
+        x: [f32; 3],
+        n: [f32; 3],
+        clipped: bool,
+        f: &mut impl FnMut(usize, f32),
+    ) -> (f32, bool) {
         let (mut sum, mut cut) = (0.0f32, false);
         for &entry in entries {
             let leaf = &leaves[(entry & 0xffff_ffff) as usize];
             let (w, positive) = leaf.weights(x, n);
             let mut mask = lanes(entry, WEIGH_BITS) & positive & leaf.contains_mask(x);
-            let (test, always) = (lanes(entry, TEST_BITS), lanes(entry, ALWAYS_BITS));
+            let (test, always) = if clipped {
+                (lanes(entry, TEST_BITS), lanes(entry, ALWAYS_BITS))
+            } else {
+                (0, 0)
+            };
             while mask != 0 {
                 let k = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
                 let j = leaf.j[k] as usize;
                 let bit = 1 << k;
-                if always & bit != 0 || (test & bit != 0 && self.ib.clip.cuts(j, x)) {
+                if always & bit != 0 || (test & bit != 0 && ib.clip.cuts(j, x)) {
                     cut = true;
                     continue;
                 }
@@ -415,21 +440,7 @@ impl<'a> SenderCells<'a> {
                 f(j, w[k]);
             }
         }
-        if sum == 0.0 && cut {
-            // As `IndexedBasis::for_each_weight`: unclipped where the clip leaves nothing.
-            for &entry in entries {
-                let leaf = &leaves[(entry & 0xffff_ffff) as usize];
-                let (w, positive) = leaf.weights(x, n);
-                let mut mask = lanes(entry, WEIGH_BITS) & positive & leaf.contains_mask(x);
-                while mask != 0 {
-                    let k = mask.trailing_zeros() as usize;
-                    mask &= mask - 1;
-                    sum += w[k];
-                    f(leaf.j[k] as usize, w[k]);
-                }
-            }
-        }
-        sum
+        (sum, cut)
     }
 
     /// Calls `f(j, scale * B_j(y, n))` for every basis function of levels `0..levels` with a

@@ -93,13 +93,33 @@ impl IndexedBasis {
         n: [f32; 3],
         mut f: impl FnMut(usize, f32),
     ) -> f32 {
+        let (sum, cut) = self.weights(l, x, n, true, &mut f);
+        if sum == 0.0 && cut {
+            // The clip would leave the level without support at `x`: unclipped there.
+            return self.weights(l, x, n, false, &mut f).0;
+        }
+        sum
+    }
+
+    /// Calls `f(j, w_j)` for the functions of level `l` with a positive weight at `(x, n)`,
+    /// less those the clip cuts when `clipped`; returns their weights' sum and whether the
+    /// clip cut any.
+    #[inline]
+    fn weights(
+        &self,
+        l: usize,
+        x: [f32; 3],
+        n: [f32; 3],
+        clipped: bool,
+        f: &mut impl FnMut(usize, f32),
+    ) -> (f32, bool) {
         let b = &self.basis;
         let (mut sum, mut cut) = (0.0f32, false);
         self.trees[l].for_each_candidate(x, |j| {
             let j = j as usize;
             let w = weight(x, n, b.positions[j], b.normals[j], b.radii[j]);
             if w > 0.0 {
-                if self.clip.cuts(j, x) {
+                if clipped && self.clip.cuts(j, x) {
                     cut = true;
                 } else {
                     sum += w;
@@ -107,18 +127,7 @@ impl IndexedBasis {
                 }
             }
         });
-        if sum == 0.0 && cut {
-            // The clip would leave the level without support at `x`: unclipped there.
-            self.trees[l].for_each_candidate(x, |j| {
-                let j = j as usize;
-                let w = weight(x, n, b.positions[j], b.normals[j], b.radii[j]);
-                if w > 0.0 {
-                    sum += w;
-                    f(j, w);
-                }
-            });
-        }
-        sum
+        (sum, cut)
     }
 
     /// [`IndexedBasis::for_each_weight`] without the fallback: where the clip cuts every
@@ -132,17 +141,7 @@ impl IndexedBasis {
         n: [f32; 3],
         mut f: impl FnMut(usize, f32),
     ) -> f32 {
-        let b = &self.basis;
-        let mut sum = 0.0f32;
-        self.trees[l].for_each_candidate(x, |j| {
-            let j = j as usize;
-            let w = weight(x, n, b.positions[j], b.normals[j], b.radii[j]);
-            if w > 0.0 && !self.clip.cuts(j, x) {
-                sum += w;
-                f(j, w);
-            }
-        });
-        sum
+        self.weights(l, x, n, true, &mut f).0
     }
 
     /// Sum of the weights of level `l` at `(x, n)`, the Shepard denominator of Eq. 2.
